@@ -1,0 +1,253 @@
+"""Physics backends: the one seam between the env core and a physics engine.
+
+Both backends expose the same four pure functions, written for ONE env and batched with
+``jax.vmap`` by the caller:
+
+- ``init(qpos, qvel, mocap_pos) -> data``: a physics state with positions/velocities set and
+  derived quantities (sensors) computed;
+- ``step(data, ctrl, mocap_pos) -> data``: ``n_substeps`` physics steps holding ``ctrl`` (finger
+  servo targets) and ``mocap_pos`` (the Cartesian targets of the two grippers) fixed;
+- ``sensordata(data) -> [nsensordata]`` float32;
+- ``mocap_pos(data) -> [nmocap, 3]``.
+
+``mjx``: MuJoCo MJX, ``mjx.Data`` stepped by ``mjx.step`` (the engine on accelerators).
+``c``: MuJoCo's C engine. ``step`` is a ``jax.pure_callback`` (``vmap_method="broadcast_all"``)
+into ``mujoco.rollout`` over the whole batch at once (multi-threaded, persistent pool).
+
+Facts the C backend handles (mujoco 4.0.0):
+- ``rollout`` resets mocap to the model default and zeroes the warmstart at every call, and its
+  full-physics state holds neither: the mocap targets are passed as controls for every substep
+  (``control_spec = CTRL | MOCAP_POS``) and kept in ``CData``.
+- ``rollout`` silently freezes an env after an engine warning (its time stops advancing): the
+  backend compares the returned time with the expected one and raises ``CData.ok`` to 0.0, which
+  the env reports as ``metrics["physics_ok"]``.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+
+def default_physics() -> str:
+    """``mjx`` when JAX sees an accelerator, else ``c``."""
+    return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "c"
+
+
+# --------------------------------------------------------------------------------- MJX -----
+
+
+class MjxBackend:
+    name = "mjx"
+
+    def __init__(self, model: mujoco.MjModel, n_substeps: int):
+        from mujoco import mjx
+
+        self._mjx = mjx
+        self.mj_model = model
+        self.n_substeps = int(n_substeps)
+        self.model = mjx.put_model(model)
+        self._data0 = mjx.make_data(self.model)
+
+    def init(self, qpos, qvel, mocap_pos):
+        d = self._data0.replace(qpos=qpos, qvel=qvel, mocap_pos=mocap_pos)
+        return self._mjx.forward(self.model, d)
+
+    def step(self, data, ctrl, mocap_pos):
+        d = data.replace(ctrl=ctrl, mocap_pos=mocap_pos)
+
+        def body(_, d):
+            return self._mjx.step(self.model, d)
+
+        return jax.lax.fori_loop(0, self.n_substeps, body, d)
+
+    @staticmethod
+    def sensordata(data):
+        return data.sensordata.astype(jnp.float32)
+
+    @staticmethod
+    def mocap_pos(data):
+        return data.mocap_pos
+
+    @staticmethod
+    def qpos(data):
+        return data.qpos
+
+    @staticmethod
+    def ok(data):
+        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+        return finite.astype(jnp.float32)
+
+
+# ------------------------------------------------------------------------------- C engine --
+
+
+@struct.dataclass
+class CData:
+    """Physics state of one env for the C backend (float32 mirror of MuJoCo's full state)."""
+
+    time: jax.Array  # []
+    qpos: jax.Array  # [nq]
+    qvel: jax.Array  # [nv]
+    act: jax.Array  # [na]
+    mocap_pos: jax.Array  # [nmocap, 3]
+    sensordata: jax.Array  # [nsensordata]
+    ok: jax.Array  # [] 1.0 while the engine has not frozen this env
+
+
+def _state_offsets(model: mujoco.MjModel) -> dict[str, tuple[int, int]]:
+    """Offsets of the components inside a ``mjSTATE_FULLPHYSICS`` state vector."""
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    out, i, bit = {}, 0, 1
+    while bit <= spec:
+        if spec & bit:
+            n = mujoco.mj_stateSize(model, bit)
+            out[mujoco.mjtState(bit).name] = (i, n)
+            i += n
+        bit <<= 1
+    assert i == mujoco.mj_stateSize(model, spec)
+    return out
+
+
+class CBackend:
+    name = "c"
+
+    def __init__(self, model: mujoco.MjModel, n_substeps: int, nthread: int | None = None):
+        from mujoco import rollout
+
+        self._rollout = rollout
+        self.mj_model = model
+        self.n_substeps = int(n_substeps)
+        self.nthread = int(nthread or max(1, os.cpu_count() or 1))
+        self._datas = [mujoco.MjData(model) for _ in range(self.nthread)]
+        self._fwd_data = mujoco.MjData(model)
+        self._lock = threading.Lock()
+        self.nq, self.nv, self.na = model.nq, model.nv, model.na
+        self.nmocap, self.nu, self.ns = model.nmocap, model.nu, model.nsensordata
+        self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._off = _state_offsets(model)
+        self._ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS)
+        self._dt = float(model.opt.timestep)
+        self.frozen_count = 0  # envs found frozen by the engine (host-side counter)
+
+    # -- host functions (NumPy, run inside pure_callback) -------------------------------------
+
+    def _pack(self, time, qpos, qvel, act):
+        n = qpos.shape[0]
+        s = np.zeros((n, self.nstate), np.float64)
+        for name, arr in (("mjSTATE_TIME", time[:, None]), ("mjSTATE_QPOS", qpos),
+                          ("mjSTATE_QVEL", qvel), ("mjSTATE_ACT", act)):
+            i, k = self._off[name]
+            if k:
+                s[:, i : i + k] = arr
+        return s
+
+    def _unpack(self, s, name):
+        i, k = self._off[name]
+        return s[:, i : i + k]
+
+    def _host_forward(self, qpos, qvel, mocap_pos):
+        lead = qpos.shape[:-1]
+        qpos = np.asarray(qpos, np.float64).reshape(-1, self.nq)
+        qvel = np.asarray(qvel, np.float64).reshape(-1, self.nv)
+        mocap = np.asarray(mocap_pos, np.float64).reshape(-1, self.nmocap, 3)
+        out = np.empty((qpos.shape[0], self.ns), np.float32)
+        m, d = self.mj_model, self._fwd_data
+        with self._lock:
+            for b in range(qpos.shape[0]):
+                mujoco.mj_resetData(m, d)
+                d.qpos[:] = qpos[b]
+                d.qvel[:] = qvel[b]
+                d.mocap_pos[:] = mocap[b]
+                mujoco.mj_forward(m, d)
+                out[b] = d.sensordata
+        return out.reshape(lead + (self.ns,))
+
+    def _host_step(self, time, qpos, qvel, act, ctrl, mocap_pos):
+        lead = qpos.shape[:-1]
+        n = int(np.prod(lead)) if lead else 1
+        time = np.asarray(time, np.float64).reshape(n)
+        state = self._pack(time, np.asarray(qpos).reshape(n, self.nq),
+                           np.asarray(qvel).reshape(n, self.nv),
+                           np.asarray(act).reshape(n, self.na))
+        control = np.concatenate(
+            [np.asarray(ctrl, np.float64).reshape(n, self.nu),
+             np.asarray(mocap_pos, np.float64).reshape(n, self.nmocap * 3)], axis=-1)
+        control = np.repeat(control[:, None, :], self.n_substeps, axis=1)
+        with self._lock:
+            st, sens = self._rollout.rollout(
+                self.mj_model, self._datas, state, control, control_spec=self._ctrl_spec,
+                nstep=self.n_substeps, persistent_pool=True)
+        last = st[:, -1]
+        new_time = self._unpack(last, "mjSTATE_TIME")[:, 0]
+        expected = time + self.n_substeps * self._dt
+        ok = (np.abs(new_time - expected) < 0.5 * self._dt).astype(np.float32)
+        self.frozen_count += int(n - ok.sum())
+        f32 = lambda a, k: a.astype(np.float32).reshape(lead + (k,))  # noqa: E731
+        return (new_time.astype(np.float32).reshape(lead),
+                f32(self._unpack(last, "mjSTATE_QPOS"), self.nq),
+                f32(self._unpack(last, "mjSTATE_QVEL"), self.nv),
+                f32(self._unpack(last, "mjSTATE_ACT"), self.na),
+                f32(sens[:, -1], self.ns),
+                ok.reshape(lead))
+
+    # -- traced functions (one env) -----------------------------------------------------------
+
+    def init(self, qpos, qvel, mocap_pos):
+        qpos = jnp.asarray(qpos, jnp.float32)
+        qvel = jnp.asarray(qvel, jnp.float32)
+        mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
+        sens = jax.pure_callback(
+            self._host_forward, jax.ShapeDtypeStruct((self.ns,), jnp.float32),
+            qpos, qvel, mocap_pos, vmap_method="broadcast_all")
+        return CData(time=jnp.zeros((), jnp.float32), qpos=qpos, qvel=qvel,
+                     act=jnp.zeros((self.na,), jnp.float32), mocap_pos=mocap_pos,
+                     sensordata=sens, ok=jnp.ones((), jnp.float32))
+
+    def step(self, data: CData, ctrl, mocap_pos):
+        ctrl = jnp.asarray(ctrl, jnp.float32)
+        mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
+        shapes = (jax.ShapeDtypeStruct((), jnp.float32),
+                  jax.ShapeDtypeStruct((self.nq,), jnp.float32),
+                  jax.ShapeDtypeStruct((self.nv,), jnp.float32),
+                  jax.ShapeDtypeStruct((self.na,), jnp.float32),
+                  jax.ShapeDtypeStruct((self.ns,), jnp.float32),
+                  jax.ShapeDtypeStruct((), jnp.float32))
+        time, qpos, qvel, act, sens, ok = jax.pure_callback(
+            self._host_step, shapes, data.time, data.qpos, data.qvel, data.act, ctrl, mocap_pos,
+            vmap_method="broadcast_all")
+        return CData(time=time, qpos=qpos, qvel=qvel, act=act, mocap_pos=mocap_pos,
+                     sensordata=sens, ok=data.ok * ok)
+
+    @staticmethod
+    def sensordata(data: CData):
+        return data.sensordata
+
+    @staticmethod
+    def mocap_pos(data: CData):
+        return data.mocap_pos
+
+    @staticmethod
+    def qpos(data: CData):
+        return data.qpos
+
+    @staticmethod
+    def ok(data: CData):
+        return data.ok
+
+
+def make_backend(physics: str, model: mujoco.MjModel, n_substeps: int):
+    if physics == "auto":
+        physics = default_physics()
+    if physics == "mjx":
+        return MjxBackend(model, n_substeps)
+    if physics == "c":
+        return CBackend(model, n_substeps)
+    raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")

@@ -1,0 +1,256 @@
+"""Dual-arm environment core shared by every task.
+
+Pure functional API for ONE env (batch with ``jax.vmap``)::
+
+    env = mjx_envs.make("reach", physics="c")
+    state = env.reset(key)
+    state = env.step(state, action)          # action: [8] = per arm [dx, dy, dz, finger]
+
+Cartesian control: each gripper's tool centre point is welded to a mocap target (as in the
+Fetch tasks). A step moves each target by ``max_delta * clip(a[:3], -1, 1)`` metres, clipped to
+that arm's workspace box, with a fixed downward orientation; the weld pulls the arm along. The
+finger command maps [-1, 1] to the finger opening [0, finger_stroke] (or is ignored and the
+fingers held closed when ``lock_fingers``). See docs/ENVIRONMENTS.md for why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from mjx_envs import observation as obs_lib
+from mjx_envs.backends import make_backend, default_physics
+
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+NUM_ARMS = 2
+
+
+@struct.dataclass
+class State:
+    """One env's state. ``obs`` arrays carry a leading arm axis of 2 (0 = left, 1 = right)."""
+
+    data: Any
+    obs: dict[str, jax.Array]
+    reward: jax.Array  # [2] per-arm reward of the last step
+    done: jax.Array  # [] 1.0 at the last step of the fixed-length episode
+    metrics: dict[str, jax.Array]
+    info: dict[str, jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """Settings of a task; each task's ``default_config()`` fills them in.
+
+    Every field can be overridden through ``mjx_envs.make(task, **overrides)``.
+    """
+
+    scene: str = "scene_reach.xml"
+    """MJCF scene file in ``assets/``."""
+    episode_length: int = 50
+    """Control steps per episode (fixed; no early termination)."""
+    n_substeps: int = 4
+    """Physics steps per control step."""
+    timestep: float = 0.01
+    """Physics timestep, seconds (overrides the MJCF option)."""
+    max_delta: float = 0.05
+    """Largest move of a gripper target per control step along each axis, metres."""
+    lock_fingers: bool = True
+    """Ignore the finger command and hold the fingers at ``locked_opening``."""
+    locked_opening: float = 0.0
+    """Finger opening while locked, metres."""
+    finger_stroke: float = 0.04
+    """Opening of one finger at command +1, metres."""
+    distance_threshold: float = 0.02
+    """Success radius of each arm's achieved goal, metres."""
+    goal_scale: float = 1.0
+    """Scale of the per-arm goal term -(d_i >= threshold)."""
+    team_scale: float = 0.0
+    """Scale of the team term: -team_scale for both arms unless every arm succeeds."""
+    arm_contact_penalty: float = 0.0
+    """Per-arm penalty when the arms come closer than ``arm_clearance`` (goal-independent)."""
+    arm_clearance: float = 0.01
+    """Surface gap between the arms' link capsules under which ``arm_contact`` is set, metres."""
+    workspace_low: tuple = ((0.12, -0.14, 0.41), (0.12, -0.36, 0.41))
+    """Lower corner of each arm's target box (left, right), world metres."""
+    workspace_high: tuple = ((0.40, 0.36, 0.65), (0.40, 0.14, 0.65))
+    """Upper corner of each arm's target box (left, right), world metres."""
+    goal_low: tuple = ((0.18, -0.08, 0.43), (0.18, -0.30, 0.43))
+    """Lower corner of each arm's goal region (reach)."""
+    goal_high: tuple = ((0.34, 0.30, 0.60), (0.34, 0.08, 0.60))
+    """Upper corner of each arm's goal region (reach)."""
+
+
+def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:
+    """``dataclasses.replace`` with a clear error for unknown fields."""
+    names = {f.name for f in dataclasses.fields(cfg)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise ValueError(f"unknown config field(s) {unknown} for {type(cfg).__name__}; "
+                         f"valid: {sorted(names)}")
+    return dataclasses.replace(cfg, **overrides)
+
+
+class DualArmEnv:
+    """Two UR3 arms with grippers; subclasses choose goals, objects and achieved goals."""
+
+    task_name = "base"
+    num_arms = NUM_ARMS
+    action_size = 8
+    goal_size = 3
+    obs_size = obs_lib.OBS_SIZE
+    info_keys: tuple[str, ...] = ("arm_contact_penalty",)
+
+    @classmethod
+    def default_config(cls) -> TaskConfig:
+        return TaskConfig()
+
+    def __init__(self, config: TaskConfig | None = None, physics: str = "auto"):
+        self.config = config or self.default_config()
+        cfg = self.config
+        if cfg.episode_length < 2:
+            raise ValueError("episode_length must be >= 2")
+        if cfg.n_substeps < 1:
+            raise ValueError("n_substeps must be >= 1")
+        self.physics = default_physics() if physics == "auto" else physics
+        self.mj_model = load_model(cfg.scene, cfg.timestep)
+        self.episode_length = int(cfg.episode_length)
+        self.dt = float(cfg.timestep * cfg.n_substeps)
+        self.sensors = obs_lib.SensorLayout.from_model(self.mj_model)
+        key = self.mj_model.key("home")
+        self._home_qpos = np.asarray(key.qpos, np.float32)
+        self._home_mocap = np.asarray(key.mpos, np.float32).reshape(-1, 3)[:NUM_ARMS]
+        self._ws_low = np.asarray(cfg.workspace_low, np.float32)
+        self._ws_high = np.asarray(cfg.workspace_high, np.float32)
+        self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
+        self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
+
+    # -- task hooks -----------------------------------------------------------------------------
+
+    def _sample_goal(self, key) -> jax.Array:
+        """Desired goal [2, 3]."""
+        raise NotImplementedError
+
+    def _init_qpos(self, key) -> jax.Array:
+        """Initial qpos (objects placed); default: the home keyframe."""
+        return jnp.asarray(self._home_qpos)
+
+    def _achieved_goal(self, arm, obj) -> jax.Array:
+        """Achieved goal [2, 3] from the sensor readings."""
+        raise NotImplementedError
+
+    # -- rewards ----------------------------------------------------------------------------------
+
+    def goal_distance(self, achieved_goal, desired_goal):
+        return jnp.linalg.norm(achieved_goal - desired_goal, axis=-1)
+
+    def success(self, achieved_goal, desired_goal):
+        """1.0 where every arm is within the threshold; shape = leading axes."""
+        d = self.goal_distance(achieved_goal, desired_goal)
+        return jnp.all(d < self.config.distance_threshold, axis=-1).astype(jnp.float32)
+
+    def reward_terms(self, achieved_goal, desired_goal) -> dict[str, jax.Array]:
+        """Goal-dependent per-arm terms [..., 2] (raw, before scaling)."""
+        d = self.goal_distance(achieved_goal, desired_goal)
+        goal = -(d >= self.config.distance_threshold).astype(jnp.float32)
+        team = jnp.broadcast_to((self.success(achieved_goal, desired_goal) - 1.0)[..., None],
+                                goal.shape)
+        return {"goal": goal, "team": team}
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None):
+        """Per-arm reward [..., 2]: goal term + team term + goal-independent ``info`` terms.
+
+        Broadcasts over any leading axes; 0 exactly when the arm is within the threshold (and,
+        with a team term, when both are) and no penalty applies.
+        """
+        cfg = self.config
+        t = self.reward_terms(jnp.asarray(achieved_goal), jnp.asarray(desired_goal))
+        r = cfg.goal_scale * t["goal"] + cfg.team_scale * t["team"]
+        if info is not None:
+            for k in self.info_keys:
+                r = r + info[k]
+        return r
+
+    # -- API --------------------------------------------------------------------------------------
+
+    def _finger_ctrl(self, finger_cmd):
+        cfg = self.config
+        if cfg.lock_fingers:
+            opening = jnp.full((NUM_ARMS,), cfg.locked_opening, jnp.float32)
+        else:
+            opening = (finger_cmd + 1.0) * 0.5 * cfg.finger_stroke
+        return jnp.repeat(opening, 2)  # two finger servos per arm: [l1, l2, r1, r2]
+
+    def _observe(self, data, desired_goal, step, prev_metrics=None):
+        sens = self.backend.sensordata(data)
+        obs, arm, obj = obs_lib.observe(jnp, self.sensors, sens, self.dt)
+        ag = self._achieved_goal(arm, obj).astype(jnp.float32)
+        clearance = obs_lib.arm_clearance(jnp, arm["link_points"])
+        arm_contact = (clearance < self.config.arm_clearance).astype(jnp.float32)
+        info = {
+            "arm_contact_penalty": jnp.full((NUM_ARMS,), -self.config.arm_contact_penalty,
+                                            jnp.float32) * arm_contact,
+            "step": step,
+        }
+        terms = self.reward_terms(ag, desired_goal)
+        reward = self.compute_reward(ag, desired_goal, info)
+        dist = self.goal_distance(ag, desired_goal)
+        metrics = {
+            "success": self.success(ag, desired_goal),
+            "arm_contact": arm_contact,
+            "arm_clearance": clearance.astype(jnp.float32),
+            "goal_distance": jnp.mean(dist),
+            "reward": jnp.mean(reward),
+            "reward_goal": jnp.mean(terms["goal"]),
+            "reward_team": jnp.mean(terms["team"]),
+            "reward_arm_contact": jnp.mean(info["arm_contact_penalty"]),
+            "physics_ok": self.backend.ok(data),
+        }
+        o = {"observation": obs, "achieved_goal": ag,
+             "desired_goal": desired_goal.astype(jnp.float32)}
+        return o, reward.astype(jnp.float32), metrics, info
+
+    def reset(self, key) -> State:
+        k_goal, k_init = jax.random.split(key)
+        goal = self._sample_goal(k_goal).astype(jnp.float32)
+        qpos = self._init_qpos(k_init).astype(jnp.float32)
+        qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
+        mocap = jnp.asarray(self._home_mocap)
+        data = self.backend.init(qpos, qvel, mocap)
+        step = jnp.zeros((), jnp.int32)
+        obs, reward, metrics, info = self._observe(data, goal, step)
+        return State(data=data, obs=obs, reward=jnp.zeros((NUM_ARMS,), jnp.float32),
+                     done=jnp.zeros((), jnp.float32), metrics=metrics, info=info)
+
+    def step(self, state: State, action) -> State:
+        a = jnp.clip(jnp.asarray(action, jnp.float32).reshape(NUM_ARMS, 4), -1.0, 1.0)
+        target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
+        target = jnp.clip(target + self.config.max_delta * a[:, :3], self._ws_low, self._ws_high)
+        ctrl = self._finger_ctrl(a[:, 3])
+        data = self.backend.step(state.data, ctrl, target)
+        step = state.info["step"] + 1
+        obs, reward, metrics, info = self._observe(data, state.obs["desired_goal"], step)
+        done = (step >= self.episode_length).astype(jnp.float32)
+        return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
+
+    def render(self, state: State, width: int = 640, height: int = 480, camera=None):
+        """RGB frame [H, W, 3] of an unbatched state (host side, C engine's renderer)."""
+        from mjx_envs.render import render_state
+
+        return render_state(self, state, width=width, height=height, camera=camera)
+
+
+def load_model(scene: str, timestep: float | None = None) -> mujoco.MjModel:
+    path = ASSETS / scene
+    if not path.exists():
+        raise FileNotFoundError(f"scene {path} not found")
+    m = mujoco.MjModel.from_xml_path(str(path))
+    if timestep is not None:
+        m.opt.timestep = float(timestep)
+    return m
