@@ -1,0 +1,152 @@
+"""DADDPG losses and the gradient update of both agents (stacked on the agent axis).
+
+Per agent i (A agents: 2 arms, or 1 for 'single'):
+    critic:  y_i = clip(r_i + gamma * Q'_i(o', g, mu'(o', g)), lo, hi)       (no done mask:
+             episodes are fixed-length time limits, as in the HER baselines)
+             L_i = mean_B (y_i - Q_i(o, g, a))^2
+    actor:   J_i = -mean_B Q_i(o, g, a with arm i's slot replaced by mu_i(o, g))
+                   + action_l2 * mean(mu_i(o, g)^2)
+             the other arm's slot holds the buffer action (or the current policy's action
+             under stop_gradient), so J_i depends on actor i's parameters only.
+The summed loss over agents has per-agent gradients (agents share no parameters), and Adam is
+elementwise, so one optax update over the stacked parameters updates every agent independently.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from daddpg_jax import networks as nets
+
+
+@struct.dataclass
+class AgentState:
+    actor: dict           # stacked actor params [A, ...]
+    critic: dict          # stacked critic params [A, ...]
+    target_actor: dict
+    target_critic: dict
+    actor_opt: optax.OptState
+    critic_opt: optax.OptState
+
+
+class Learner(NamedTuple):
+    """Static pieces of the learner (modules, optimizers, constants)."""
+    algo: str
+    actor: nets.MLP
+    critic: nets.MLP
+    actor_tx: optax.GradientTransformation
+    critic_tx: optax.GradientTransformation
+    gamma: float
+    polyak: float
+    action_l2: float
+    target_lo: float
+    target_hi: float
+    clip_target: bool
+    other_action: str
+
+
+def target_bounds(algo: str, reward_range, gamma: float):
+    """[r_min/(1-gamma), r_max/(1-gamma)] per agent; 'single' sums the two arms' bounds."""
+    r_min, r_max = float(reward_range[0]), float(reward_range[1])
+    if algo == "single":
+        r_min, r_max = 2 * r_min, 2 * r_max
+    return r_min / (1.0 - gamma), r_max / (1.0 - gamma)
+
+
+def make_learner(cfg, reward_range) -> Learner:
+    actor, critic = nets.make_networks(cfg.algo, cfg.hidden)
+    lo, hi = target_bounds(cfg.algo, reward_range, cfg.gamma)
+    return Learner(cfg.algo, actor, critic, optax.adam(cfg.lr_actor), optax.adam(cfg.lr_critic),
+                   cfg.gamma, cfg.polyak, cfg.action_l2, lo, hi, cfg.clip_target, cfg.other_action)
+
+
+def init_agent_state(key, learner: Learner, hidden, obs_size: int, goal_size: int = 3) -> AgentState:
+    actor_p, critic_p = nets.init_params(key, learner.algo, hidden, obs_size, goal_size)
+    return AgentState(actor=actor_p, critic=critic_p,
+                      target_actor=jax.tree.map(jnp.copy, actor_p),
+                      target_critic=jax.tree.map(jnp.copy, critic_p),
+                      actor_opt=learner.actor_tx.init(actor_p),
+                      critic_opt=learner.critic_tx.init(critic_p))
+
+
+def agent_rewards(algo: str, r):
+    """Per-arm rewards [B, 2] -> per-agent rewards [A, B]."""
+    if algo == "single":
+        return jnp.sum(r, -1)[None]
+    return jnp.swapaxes(r, 0, 1)
+
+
+def td_target(r, q_next, gamma: float, lo: float, hi: float, clip: bool = True):
+    y = r + gamma * q_next
+    return jnp.clip(y, lo, hi) if clip else y
+
+
+def polyak_update(target, online, polyak: float):
+    """target <- polyak * target + (1 - polyak) * online."""
+    return jax.tree.map(lambda t, o: polyak * t + (1.0 - polyak) * o, target, online)
+
+
+def policy_actions(learner: Learner, actor_params, o, g):
+    """Normalized o [B,2,obs], g [B,2,3] -> per-agent actions [A, B, act_dim]."""
+    return nets.apply_stacked(learner.actor, actor_params, nets.actor_inputs(learner.algo, o, g))
+
+
+def q_values(learner: Learner, critic_params, o, g, a_joint):
+    """a_joint [A, B, 8] (each agent's view of the joint action) -> Q [A, B]."""
+    return nets.apply_stacked(learner.critic, critic_params,
+                              nets.critic_inputs(learner.algo, o, g, a_joint))
+
+
+def _bcast(a, n):
+    return jnp.broadcast_to(a, (n,) + a.shape)
+
+
+def critic_loss(critic_params, target_actor, target_critic, batch, learner: Learner):
+    """batch: normalized o, o2, g, actions a [B,8], per-agent rewards r [A,B]."""
+    n = batch["r"].shape[0]
+    a2 = nets.joint_action(learner.algo, policy_actions(learner, target_actor, batch["o2"], batch["g"]))
+    q2 = q_values(learner, target_critic, batch["o2"], batch["g"], _bcast(a2, n))
+    y = jax.lax.stop_gradient(td_target(batch["r"], q2, learner.gamma, learner.target_lo,
+                                        learner.target_hi, learner.clip_target))
+    q = q_values(learner, critic_params, batch["o"], batch["g"], _bcast(batch["a"], n))
+    per_agent = jnp.mean(jnp.square(y - q), axis=1)
+    return jnp.sum(per_agent), dict(critic_loss=per_agent, mean_q=jnp.mean(q, 1),
+                                    mean_target=jnp.mean(y, 1))
+
+
+def actor_loss(actor_params, critic_params, batch, learner: Learner):
+    pi = policy_actions(learner, actor_params, batch["o"], batch["g"])      # [A, B, d]
+    n, _, d = pi.shape
+    if learner.other_action == "policy":
+        base = jax.lax.stop_gradient(nets.joint_action(learner.algo, pi))
+    else:
+        base = batch["a"]
+    own = nets.own_action_mask(learner.algo)[:, None, :]                    # [A, 1, 8]
+    mixed = jnp.where(own, jnp.tile(pi, (1, 1, own.shape[-1] // d)), _bcast(base, n))
+    q = q_values(learner, critic_params, batch["o"], batch["g"], mixed)     # [A, B]
+    per_agent = -jnp.mean(q, 1) + learner.action_l2 * jnp.mean(jnp.square(pi), axis=(1, 2))
+    return jnp.sum(per_agent), dict(actor_loss=per_agent)
+
+
+def update(agent: AgentState, batch, learner: Learner):
+    """One gradient step of every actor and critic from the same minibatch (both losses use the
+    pre-update parameters, as the HER baselines do). Returns (agent, metrics)."""
+    (_, c_aux), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
+        agent.critic, agent.target_actor, agent.target_critic, batch, learner)
+    (_, a_aux), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
+        agent.actor, agent.critic, batch, learner)
+    c_upd, critic_opt = learner.critic_tx.update(c_grads, agent.critic_opt, agent.critic)
+    a_upd, actor_opt = learner.actor_tx.update(a_grads, agent.actor_opt, agent.actor)
+    agent = agent.replace(critic=optax.apply_updates(agent.critic, c_upd), critic_opt=critic_opt,
+                          actor=optax.apply_updates(agent.actor, a_upd), actor_opt=actor_opt)
+    return agent, {**c_aux, **a_aux}
+
+
+def update_targets(agent: AgentState, polyak: float) -> AgentState:
+    return agent.replace(target_actor=polyak_update(agent.target_actor, agent.actor, polyak),
+                         target_critic=polyak_update(agent.target_critic, agent.critic, polyak))

@@ -1,0 +1,200 @@
+"""Training loop: one jitted `train_epoch` (lax.scan over cycles) and a vectorized `evaluate`.
+
+A cycle (all inside one compiled program):
+  1. reset every env (vmapped `env.reset`, one key per env) and roll out T steps with lax.scan;
+     each arm's action is its actor's output + N(0, noise_eps), clipped to [-1, 1], replaced by a
+     uniform random action with probability random_eps (drawn per env, per arm, per step);
+  2. insert the num_envs episodes into the ring buffer;
+  3. update the normalizers with every new transition once: observations o_t, and the goals
+     after the same HER relabelling the learner will see (as the HER baselines do, but with the
+     exhaustive set of (episode, t) pairs instead of a random draw);
+  4. n_batches updates of all actors and critics (lax.scan), each on a fresh HER minibatch;
+  5. one polyak update of the target networks.
+Host-side work (logging, checkpoints, evaluation scheduling) happens between epochs only; an
+optional progress callback runs once per cycle through `jax.debug.callback`.
+
+Counters are int32 (`cycles`, `updates`); env steps are cycles * num_envs * T, computed in
+Python by `TrainFns.env_steps` so they cannot overflow.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from daddpg_jax import agent as agent_lib
+from daddpg_jax import networks as nets
+from daddpg_jax import normalizer as norm
+from daddpg_jax import replay
+from daddpg_jax.config import TrainConfig
+
+
+@struct.dataclass
+class TrainState:
+    agent: agent_lib.AgentState
+    obs_norm: norm.NormState
+    goal_norm: norm.NormState
+    buffer: replay.ReplayBuffer
+    key: jax.Array          # uint32[2] PRNG key
+    cycles: jax.Array       # int32: cycles done
+    updates: jax.Array      # int32: gradient updates done
+
+
+class TrainFns(NamedTuple):
+    init: Callable            # init(key=None) -> TrainState
+    train_epoch: Callable     # train_epoch(state) -> (state, metrics of per-cycle arrays)
+    evaluate: Callable        # evaluate(state, key=None) -> metrics dict
+    act: Callable             # act(state, obs [...,2,obs], desired_goal [...,2,3]) -> [..., 8]
+    env_steps: Callable       # env_steps(state) -> int
+    learner: agent_lib.Learner
+    config: TrainConfig
+    capacity: int             # buffer capacity in episodes
+    horizon: int
+
+
+def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None) -> TrainFns:
+    """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
+
+    progress: optional host function `progress(metrics)` called once per cycle (unordered)
+    with that cycle's metrics as NumPy arrays (for a progress bar); None compiles no callback.
+    """
+    T = int(env.episode_length)
+    n_arms = int(env.num_arms)
+    if n_arms != 2 or env.action_size != 2 * nets.ARM_ACTION:
+        raise ValueError("the trainer expects 2 arms with 4-d actions each")
+    learner = agent_lib.make_learner(cfg, env.reward_range)
+    algo, n_agents = cfg.algo, cfg.num_agents
+    info_keys = tuple(env.info_keys)
+    capacity = replay.capacity_episodes(cfg.buffer_size, T, cfg.num_envs)
+    future_p = cfg.future_p
+    norm_kw = dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
+
+    def normalize_inputs(state, o, g):
+        return norm.normalize(state.obs_norm, o, **norm_kw), norm.normalize(state.goal_norm, g, **norm_kw)
+
+    def act(state: TrainState, obs, desired_goal):
+        """Deterministic joint action [..., 8] for observations [..., 2, obs], goals [..., 2, 3]."""
+        lead = obs.shape[:-2]
+        o = obs.reshape((-1,) + obs.shape[-2:])
+        g = desired_goal.reshape((-1,) + desired_goal.shape[-2:])
+        o, g = normalize_inputs(state, o, g)
+        pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)
+        return nets.joint_action(algo, pi).reshape(lead + (env.action_size,))
+
+    def rollout(state: TrainState, key, n_envs: int, explore: bool):
+        k_reset, k_scan = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n_envs))
+
+        def step(carry, _):
+            s, k = carry
+            k, k_noise, k_coin, k_rand = jax.random.split(k, 4)
+            o, g = normalize_inputs(state, s.obs["observation"], s.obs["desired_goal"])
+            pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)   # [A, N, d]
+            if explore:
+                pi = jnp.clip(pi + cfg.noise_eps * jax.random.normal(k_noise, pi.shape), -1.0, 1.0)
+                coin = jax.random.bernoulli(k_coin, cfg.random_eps, pi.shape[:2] + (1,))
+                pi = jnp.where(coin, jax.random.uniform(k_rand, pi.shape, minval=-1.0, maxval=1.0), pi)
+            a = nets.joint_action(algo, pi)
+            s2 = jax.vmap(env.step)(s, a)
+            out = dict(obs=s2.obs["observation"], ag=s2.obs["achieved_goal"],
+                       g=s.obs["desired_goal"], a=a,
+                       info={k_: s2.info[k_] for k_ in info_keys},
+                       reward=s2.reward, success=s2.metrics["success"],
+                       arm_contact=s2.metrics["arm_contact"])
+            return (s2, k), out
+
+        (_, _), tr = jax.lax.scan(step, (s0, k_scan), None, length=T)
+        bt = lambda x: jnp.swapaxes(x, 0, 1)   # [T, N, ...] -> [N, T, ...]
+        episodes = replay.Episodes(
+            obs=jnp.concatenate([s0.obs["observation"][:, None], bt(tr["obs"])], 1),
+            ag=jnp.concatenate([s0.obs["achieved_goal"][:, None], bt(tr["ag"])], 1),
+            g=bt(tr["g"]), actions=bt(tr["a"]), info=jax.tree.map(bt, tr["info"]))
+        return episodes, tr
+
+    def rollout_metrics(episodes, tr):
+        g_last = episodes.g[:, -1]
+        dist = jnp.linalg.norm(episodes.ag[:, -1] - g_last, axis=-1)               # [N, 2]
+        return dict(success=jnp.mean(tr["success"][-1]),
+                    arm_contact=jnp.mean(jnp.max(tr["arm_contact"], axis=0)),
+                    arm_contact_steps=jnp.mean(tr["arm_contact"]),
+                    final_distance=jnp.mean(dist, 0),
+                    episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
+
+    def init(key=None) -> TrainState:
+        if key is None:
+            key = jax.random.PRNGKey(cfg.seed)
+        k_agent, k_state = jax.random.split(key)
+        a_state = agent_lib.init_agent_state(k_agent, learner, cfg.hidden, env.obs_size, env.goal_size)
+        buf = replay.init(capacity, T, env.obs_size, env.goal_size, env.action_size, info_keys, n_arms)
+        return TrainState(agent=a_state,
+                          obs_norm=norm.init((n_arms, env.obs_size)),
+                          goal_norm=norm.init((n_arms, env.goal_size)),
+                          buffer=buf, key=k_state,
+                          cycles=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32))
+
+    def train_cycle(state: TrainState, _):
+        key, k_roll, k_norm, k_upd = jax.random.split(state.key, 4)
+        episodes, tr = rollout(state, k_roll, cfg.num_envs, explore=True)
+        buf = replay.insert(state.buffer, episodes)
+
+        ep = jnp.repeat(jnp.arange(cfg.num_envs, dtype=jnp.int32), T)
+        t = jnp.tile(jnp.arange(T, dtype=jnp.int32), cfg.num_envs)
+        nt = replay.her_transitions(k_norm, episodes, ep, t, cfg.her, future_p, env.compute_reward)
+        obs_norm = norm.update(state.obs_norm, nt["o"], cfg.clip_obs)
+        goal_norm = norm.update(state.goal_norm, nt["g"], cfg.clip_obs)
+        state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
+
+        def one_update(agent, k):
+            b = replay.sample(k, buf, cfg.batch_size, cfg.her, future_p, env.compute_reward)
+            o, g = normalize_inputs(state, b["o"], b["g"])
+            o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
+            batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
+            return agent_lib.update(agent, batch, learner)
+
+        a_state, um = jax.lax.scan(one_update, state.agent, jax.random.split(k_upd, cfg.n_batches))
+        a_state = agent_lib.update_targets(a_state, cfg.polyak)
+        um = jax.tree.map(lambda x: jnp.mean(x, 0), um)
+        nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"])) & jnp.all(jnp.isfinite(um["actor_loss"])))
+        state = state.replace(agent=a_state, key=key, cycles=state.cycles + 1,
+                              updates=state.updates + cfg.n_batches)
+        metrics = dict(rollout_metrics(episodes, tr), **um, nonfinite=nonfinite,
+                       cycle=state.cycles, buffer_episodes=buf.size)
+        if progress is not None:
+            jax.debug.callback(progress, metrics, ordered=False)
+        return state, metrics
+
+    def train_epoch(state: TrainState):
+        return jax.lax.scan(train_cycle, state, None, length=cfg.n_cycles)
+
+    def evaluate_impl(state: TrainState, key):
+        episodes, tr = rollout(state, key, cfg.n_test_episodes, explore=False)
+        return rollout_metrics(episodes, tr)
+
+    evaluate_jit = jax.jit(evaluate_impl)
+
+    def evaluate(state: TrainState, key=None):
+        """Deterministic actors on n_test_episodes episodes from fixed seeds (cfg.eval_seed)."""
+        if key is None:
+            key = jax.random.PRNGKey(cfg.eval_seed)
+        return evaluate_jit(state, key)
+
+    def env_steps(state: TrainState) -> int:
+        return int(state.cycles) * cfg.num_envs * T
+
+    return TrainFns(init=_init_wrapper(init, cfg),
+                    train_epoch=jax.jit(train_epoch, donate_argnums=0),
+                    evaluate=evaluate, act=jax.jit(act), env_steps=env_steps,
+                    learner=learner, config=cfg, capacity=capacity, horizon=T)
+
+
+def _init_wrapper(init_fn, cfg):
+    init_jit = jax.jit(init_fn)
+
+    def init(key=None):
+        if key is None:
+            key = jax.random.PRNGKey(cfg.seed)
+        return init_jit(key)
+    return init
