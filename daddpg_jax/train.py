@@ -48,6 +48,7 @@ class TrainFns(NamedTuple):
     train_epoch: Callable     # train_epoch(state) -> (state, metrics of per-cycle arrays)
     evaluate: Callable        # evaluate(state, key=None) -> metrics dict
     act: Callable             # act(state, obs [...,2,obs], desired_goal [...,2,3]) -> [..., 8]
+    rollout: Callable         # rollout(state, key, n_envs, explore) -> (Episodes, per-step dict [T, N, ...])
     env_steps: Callable       # env_steps(state) -> int
     learner: agent_lib.Learner
     config: TrainConfig
@@ -186,7 +187,8 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None) -
 
     return TrainFns(init=_init_wrapper(init, cfg),
                     train_epoch=jax.jit(train_epoch, donate_argnums=0),
-                    evaluate=evaluate, act=jax.jit(act), env_steps=env_steps,
+                    evaluate=evaluate, act=jax.jit(act),
+                    rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
                     learner=learner, config=cfg, capacity=capacity, horizon=T)
 
 
