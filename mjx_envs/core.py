@@ -59,6 +59,9 @@ class TaskConfig:
     """Physics steps per control step."""
     timestep: float = 0.01
     """Physics timestep, seconds (overrides the MJCF option)."""
+    cone: str = "elliptic"
+    """Friction cone ('elliptic' holds grasps better; 'pyramidal' where a scene has no contacts:
+    MJX 3.17's elliptic solver fails on a model without contacts)."""
     max_delta: float = 0.05
     """Largest move of a gripper target per control step along each axis, metres."""
     lock_fingers: bool = True
@@ -119,7 +122,7 @@ class DualArmEnv:
         if cfg.n_substeps < 1:
             raise ValueError("n_substeps must be >= 1")
         self.physics = default_physics() if physics == "auto" else physics
-        self.mj_model = load_model(cfg.scene, cfg.timestep)
+        self.mj_model = load_model(cfg.scene, cfg.timestep, cfg.cone)
         self.episode_length = int(cfg.episode_length)
         self.dt = float(cfg.timestep * cfg.n_substeps)
         self.sensors = obs_lib.SensorLayout.from_model(self.mj_model)
@@ -246,11 +249,16 @@ class DualArmEnv:
         return render_state(self, state, width=width, height=height, camera=camera)
 
 
-def load_model(scene: str, timestep: float | None = None) -> mujoco.MjModel:
+def load_model(scene: str, timestep: float | None = None, cone: str | None = None) -> mujoco.MjModel:
     path = ASSETS / scene
     if not path.exists():
         raise FileNotFoundError(f"scene {path} not found")
     m = mujoco.MjModel.from_xml_path(str(path))
     if timestep is not None:
         m.opt.timestep = float(timestep)
+    if cone is not None:
+        cones = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+        if cone not in cones:
+            raise ValueError(f"cone must be one of {sorted(cones)}, got {cone!r}")
+        m.opt.cone = cones[cone]
     return m

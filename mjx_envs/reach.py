@@ -19,7 +19,8 @@ class Reach(DualArmEnv):
 
     @classmethod
     def default_config(cls) -> TaskConfig:
-        return TaskConfig(scene="scene_reach.xml", distance_threshold=0.02, lock_fingers=True)
+        return TaskConfig(scene="scene_reach.xml", distance_threshold=0.02, lock_fingers=True,
+                          cone="pyramidal")
 
     def _sample_goal(self, key):
         lo = jnp.asarray(np.asarray(self.config.goal_low, np.float32))
