@@ -1,0 +1,175 @@
+"""Training loop on the toy env: determinism, compile count, checkpoints, progress, learning."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from daddpg_jax import checkpoint as ckpt
+from daddpg_jax import replay
+from daddpg_jax.config import TrainConfig
+from daddpg_jax.train import make_train_fns
+from tests import toy_env
+
+T = 10
+TINY = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=3, n_batches=4, batch_size=32,
+                   buffer_size=20 * T * 4, n_test_episodes=16, seed=0)
+
+
+def tree_equal(a, b):
+    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
+@pytest.fixture(scope="module")
+def env():
+    return toy_env.make(episode_length=T)
+
+
+@pytest.fixture(scope="module")
+def fns(env):
+    return make_train_fns(env, TINY)
+
+
+@pytest.fixture(scope="module")
+def two_epochs(fns):
+    """(state after 1 epoch, metrics 1, state after 2 epochs, metrics 2) from seed 0."""
+    s1, m1 = fns.train_epoch(fns.init())
+    s1_copy = jax.tree.map(jnp.copy, s1)   # train_epoch donates its argument
+    s2, m2 = fns.train_epoch(s1)
+    return s1_copy, m1, s2, m2
+
+
+def test_epoch_metrics_and_counters(fns, two_epochs):
+    s1, m1, s2, m2 = two_epochs
+    n = TINY.n_cycles
+    for k in ("success", "arm_contact", "nonfinite", "cycle"):
+        assert m1[k].shape == (n,), k
+    for k in ("critic_loss", "actor_loss", "mean_q", "final_distance"):
+        assert m1[k].shape == (n, 2), k
+    assert not np.any(m1["nonfinite"]) and not np.any(m2["nonfinite"])
+    np.testing.assert_array_equal(m2["cycle"], np.arange(n + 1, 2 * n + 1))
+    assert int(s2.cycles) == 2 * n and int(s2.updates) == 2 * n * TINY.n_batches
+    assert fns.env_steps(s2) == 2 * n * TINY.num_envs * T
+    np.testing.assert_array_equal(m1["buffer_episodes"], TINY.num_envs * np.arange(1, n + 1))
+    assert float(s2.obs_norm.count) == 2 * n * TINY.num_envs * T
+
+
+def test_train_epoch_compiles_once(fns, two_epochs):
+    s2 = two_epochs[2]
+    s3, _ = fns.train_epoch(jax.tree.map(jnp.copy, s2))
+    assert fns.train_epoch._cache_size() == 1
+
+
+def test_same_seed_same_metrics(fns, two_epochs):
+    _, m1, _, _ = two_epochs
+    _, m1b = fns.train_epoch(fns.init())
+    for k in m1:
+        np.testing.assert_array_equal(m1[k], m1b[k], err_msg=k)
+    _, m_other = fns.train_epoch(fns.init(jax.random.PRNGKey(1)))
+    assert not np.array_equal(m1["critic_loss"], m_other["critic_loss"])
+
+
+def test_evaluate_is_deterministic_and_shaped(fns, two_epochs):
+    s1 = two_epochs[0]
+    e1, e2 = fns.evaluate(s1), fns.evaluate(s1)
+    assert tree_equal(e1, e2)
+    assert e1["final_distance"].shape == (2,)
+    assert 0.0 <= float(e1["success"]) <= 1.0 and 0.0 <= float(e1["arm_contact"]) <= 1.0
+    # success is measured on n_test_episodes episodes (resolution 1/n)
+    assert float(e1["success"]) * TINY.n_test_episodes == pytest.approx(round(float(e1["success"]) * TINY.n_test_episodes))
+
+
+def test_rollout_episode_layout(fns, two_epochs, env):
+    s1 = two_epochs[0]
+    eps, tr = fns.rollout(s1, jax.random.PRNGKey(0), 3, False)
+    assert eps.obs.shape == (3, T + 1, 2, env.obs_size) and eps.ag.shape == (3, T + 1, 2, 3)
+    assert eps.g.shape == (3, T, 2, 3) and eps.actions.shape == (3, T, 8)
+    assert eps.info["arm_contact_penalty"].shape == (3, T, 2)
+    # slot 0 is the reset observation; stored rewards recompute exactly
+    s0 = jax.vmap(env.reset)(jax.random.split(jax.random.split(jax.random.PRNGKey(0))[0], 3))
+    np.testing.assert_array_equal(eps.obs[:, 0], s0.obs["observation"])
+    ep = jnp.repeat(jnp.arange(3), T)
+    t = jnp.tile(jnp.arange(T), 3)
+    out = replay.her_transitions(jax.random.PRNGKey(0), eps, ep, t, "none", 0.0, env.compute_reward)
+    np.testing.assert_allclose(out["r"], jnp.swapaxes(tr["reward"], 0, 1).reshape(3 * T, 2), atol=1e-6)
+    # deterministic actions equal `act`
+    a = fns.act(s1, eps.obs[:, 0], eps.g[:, 0])
+    np.testing.assert_allclose(a, eps.actions[:, 0], atol=1e-6)
+
+
+def test_checkpoint_round_trip_and_resume(fns, two_epochs, tmp_path):
+    s1, _, s2, m2 = two_epochs
+    run = tmp_path / "run"
+    ckpt.save(run, s1, step=1, save_buffer=True)
+    restored, step = ckpt.restore(run, fns.init(jax.random.PRNGKey(99)))
+    assert step == 1 and tree_equal(restored, s1)
+    # 1 epoch + resume + 1 epoch == 2 epochs (buffer saved)
+    r2, rm2 = fns.train_epoch(restored)
+    assert tree_equal(r2, s2)
+    for k in m2:
+        np.testing.assert_array_equal(m2[k], rm2[k], err_msg=k)
+
+
+def test_checkpoint_without_buffer_and_keep_last(fns, two_epochs, tmp_path):
+    s1 = two_epochs[0]
+    run = tmp_path / "run"
+    for step in range(1, 6):
+        ckpt.save(run, s1, step=step, save_buffer=False, keep=2)
+    assert ckpt.all_steps(run) == [4, 5]
+    template = fns.init(jax.random.PRNGKey(7))
+    restored, step = ckpt.restore(run, template)
+    assert step == 5
+    assert tree_equal(restored.agent, s1.agent) and tree_equal(restored.obs_norm, s1.obs_norm)
+    assert tree_equal(restored.buffer, template.buffer)   # fresh buffer kept
+    assert int(restored.cycles) == int(s1.cycles)
+    with pytest.raises(FileNotFoundError):
+        ckpt.restore(run, template, restore_buffer=True)
+    ckpt.save_config(run, TINY, env_overrides={"episode_length": T})
+    cfg, payload = ckpt.load_config(run)
+    assert cfg == TINY and payload["env_overrides"] == {"episode_length": T}
+    assert "jax" in payload["versions"]
+
+
+def test_progress_callback_once_per_cycle(env):
+    seen = []
+    cfg = TINY.replace(n_cycles=2)
+    f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
+    s, _ = f.train_epoch(f.init())
+    jax.block_until_ready(s)
+    jax.effects_barrier()
+    assert sorted(seen) == [1, 2]
+
+
+def test_nonfinite_flag(fns):
+    s = fns.init()
+    bad = s.replace(agent=s.agent.replace(critic=jax.tree.map(lambda x: x * jnp.nan, s.agent.critic)))
+    _, m = fns.train_epoch(bad)
+    assert np.all(m["nonfinite"])
+
+
+@pytest.mark.parametrize("algo", ["maddpg", "ddpg", "single"])
+def test_variants_run(env, algo):
+    cfg = TINY.replace(algo=algo, n_cycles=1, n_batches=2, n_test_episodes=4)
+    f = make_train_fns(env, cfg)
+    s, m = f.train_epoch(f.init())
+    assert not np.any(m["nonfinite"])
+    n_agents = 1 if algo == "single" else 2
+    assert m["critic_loss"].shape == (1, n_agents)
+    assert f.act(s, jnp.zeros((5, 2, env.obs_size)), jnp.zeros((5, 2, 3))).shape == (5, 8)
+
+
+def test_learns_toy_reach():
+    env = toy_env.make(episode_length=T, threshold=0.03, goal_range=0.1)
+    cfg = TrainConfig(hidden=(64, 64), num_envs=4, n_cycles=10, n_batches=20, batch_size=128,
+                      buffer_size=200_000, n_test_episodes=100, seed=0)
+    f = make_train_fns(env, cfg)
+    s = f.init()
+    before = float(f.evaluate(s)["success"])
+    rates = []
+    for _ in range(6):
+        s, m = f.train_epoch(s)
+        assert not np.any(m["nonfinite"])
+        rates.append(float(f.evaluate(s)["success"]))
+    print("toy reach eval success", before, rates)
+    assert max(rates[-2:]) >= before + 0.5, (before, rates)
