@@ -1,0 +1,176 @@
+"""A training run on disk: config, metrics CSV, learning curve, checkpoints, resume.
+
+``experiments/run.py`` parses flags and calls :func:`train`. Python runs only between epochs
+(evaluation, logs, checkpoints); inside an epoch everything is one compiled ``train_epoch``.
+
+RUN_DIR layout::
+
+    config.json          TrainConfig, env overrides, package versions, device, git revision
+    metrics.csv          one row per epoch (columns: METRIC_COLUMNS)
+    learning_curve.png   test success vs env steps
+    checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import jax
+import numpy as np
+
+from daddpg_jax import checkpoint as ckpt
+from daddpg_jax.config import TrainConfig
+
+METRIC_COLUMNS = (
+    "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
+    "test_final_distance_left", "test_final_distance_right", "train_success_rate",
+    "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
+    "updates_per_s",
+)
+
+
+class NonFiniteLoss(RuntimeError):
+    """Raised when a loss became NaN/inf; the last good checkpoint is kept."""
+
+
+@dataclass
+class RunResult:
+    run_dir: str
+    epochs: int
+    env_steps: int
+    wall_time: float
+    test_success_rate: float
+    rows: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        return (f"run {self.run_dir}: {self.epochs} epochs, {self.env_steps:,} env steps, "
+                f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}")
+
+
+def _read_rows(path) -> list[dict]:
+    if not os.path.exists(path):
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _append_row(path, row: dict) -> None:
+    new = not os.path.exists(path)
+    with open(path, "a", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
+        if new:
+            w.writeheader()
+        w.writerow({k: row[k] for k in METRIC_COLUMNS})
+
+
+def _scalar(x) -> float:
+    return float(np.mean(np.asarray(x)))
+
+
+def make_env(cfg: TrainConfig, env_overrides: Optional[dict] = None):
+    import mjx_envs
+
+    return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
+
+
+def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
+          resume: bool = False, progress: Optional[Callable[[dict], None]] = None,
+          on_epoch: Optional[Callable[[dict], None]] = None, plot: bool = True,
+          command: Optional[str] = None, time_budget_s: Optional[float] = None) -> RunResult:
+    """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
+
+    progress: host callback called once per cycle with that cycle's metrics (progress bar).
+    on_epoch: called with each epoch's CSV row after it is written.
+    time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
+    """
+    env_overrides = dict(env_overrides or {})
+    os.makedirs(run_dir, exist_ok=True)
+    metrics_path = os.path.join(run_dir, "metrics.csv")
+    env = make_env(cfg, env_overrides)
+
+    from daddpg_jax.train import make_train_fns
+
+    fns = make_train_fns(env, cfg, progress=progress)
+    state = fns.init(jax.random.PRNGKey(cfg.seed))
+    rows = _read_rows(metrics_path) if resume else []
+    start_epoch, wall_offset = 0, 0.0
+    if resume:
+        step = ckpt.latest_step(run_dir)
+        if step is None:
+            raise FileNotFoundError(f"--resume: no checkpoint in {ckpt.checkpoint_dir(run_dir)}")
+        state, start_epoch = ckpt.restore(run_dir, state, step)
+        rows = [r for r in rows if int(r["epoch"]) <= start_epoch]
+        # rewrite the CSV without rows of epochs after the checkpoint (a crash between the CSV
+        # write and the checkpoint)
+        if os.path.exists(metrics_path):
+            os.remove(metrics_path)
+        for r in rows:
+            _append_row(metrics_path, r)
+        wall_offset = float(rows[-1]["wall_time"]) if rows else 0.0
+    else:
+        if os.path.exists(metrics_path):
+            os.remove(metrics_path)
+        ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
+                         env_config=_jsonable(env.config.__dict__), command=command,
+                         num_agents=cfg.num_agents, physics_resolved=env.physics)
+
+    t_start = time.perf_counter()
+    last = rows[-1] if rows else None
+    epoch = start_epoch
+    while epoch < cfg.n_epochs:
+        t0 = time.perf_counter()
+        state, m = fns.train_epoch(state)
+        m = jax.device_get(m)
+        dt = time.perf_counter() - t0
+        if bool(np.any(m["nonfinite"])):
+            raise NonFiniteLoss(
+                f"non-finite loss in epoch {epoch + 1}; stopping. The last good checkpoint "
+                f"(epoch {ckpt.latest_step(run_dir)}) is kept in {ckpt.checkpoint_dir(run_dir)}.")
+        epoch += 1
+        ev = jax.device_get(fns.evaluate(state))
+        env_steps = fns.env_steps(state)
+        fd = np.asarray(ev["final_distance"]).reshape(-1)
+        row = {
+            "epoch": epoch, "env_steps": env_steps, "updates": int(state.updates),
+            "wall_time": round(wall_offset + time.perf_counter() - t_start, 3),
+            "test_success_rate": _scalar(ev["success"]),
+            "test_arm_contact_rate": _scalar(ev["arm_contact"]),
+            "test_final_distance_left": float(fd[0]), "test_final_distance_right": float(fd[-1]),
+            "train_success_rate": _scalar(m["success"]),
+            "train_arm_contact_rate": _scalar(m["arm_contact"]),
+            "critic_loss": _scalar(m["critic_loss"]), "actor_loss": _scalar(m["actor_loss"]),
+            "mean_q": _scalar(m["mean_q"]) if "mean_q" in m else math.nan,
+            "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / dt,
+            "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
+        }
+        _append_row(metrics_path, row)
+        ckpt.save(run_dir, state, epoch, save_buffer=cfg.save_buffer, keep=cfg.keep_checkpoints)
+        rows.append(row)
+        last = row
+        if plot:
+            from daddpg_jax.plotting import plot_learning_curve
+
+            plot_learning_curve(rows, os.path.join(run_dir, "learning_curve.png"),
+                                title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs")
+        if on_epoch is not None:
+            on_epoch(row)
+        if time_budget_s is not None and time.perf_counter() - t_start >= time_budget_s:
+            break
+    if last is None:
+        return RunResult(run_dir, epoch, fns.env_steps(state), wall_offset, math.nan, rows)
+    return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
+                     float(last["wall_time"]), float(last["test_success_rate"]), rows)
+
+
+def _jsonable(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, tuple):
+            v = [list(x) if isinstance(x, tuple) else x for x in v]
+        out[k] = v
+    return out

@@ -1,0 +1,225 @@
+"""Train two cooperating UR3 arms with DADDPG + HER (or a baseline variant).
+
+Examples
+  python experiments/run.py --task reach                       # CPU defaults, a few minutes
+  python experiments/run.py --task reach --num-envs 2048       # the accelerator-sized run
+  python experiments/run.py --task push --algo maddpg --her final --out runs/push_maddpg
+  python experiments/run.py --resume runs/push_maddpg --epochs 200   # continue to 200 epochs
+  python experiments/run.py --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
+
+Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch}.
+The per-task preset (docs/TRAINING.md) scales batch size and updates per cycle with --num-envs
+so that the replay ratio stays near the HER baselines'; --set overrides any field after it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _field_docs(cls) -> dict:
+    """Attribute docstrings of a dataclass (the string literal after each field)."""
+    try:
+        tree = ast.parse(inspect.getsource(cls))
+    except (OSError, TypeError):
+        return {}
+    body = tree.body[0].body
+    docs = {}
+    for a, b in zip(body, body[1:]):
+        if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
+            docs[a.target.id] = " ".join(str(b.value.value).split())
+    return docs
+
+
+def _parse_value(text: str, default):
+    if isinstance(default, bool):
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"expected a boolean, got {text!r}")
+    if isinstance(default, tuple):
+        parts = [p for p in text.replace("(", "").replace(")", "").split(",") if p.strip()]
+        if default and isinstance(default[0], tuple):
+            return ast.literal_eval(text)
+        kind = type(default[0]) if default else float
+        return tuple(kind(p) for p in parts)
+    if isinstance(default, int):
+        return int(float(text)) if "e" in text.lower() else int(text)
+    if isinstance(default, float):
+        return float(text)
+    return text
+
+
+def _kv(items, defaults: dict, what: str) -> dict:
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise SystemExit(f"error: {what} expects KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        k = k.strip().replace("-", "_")
+        if k not in defaults:
+            raise SystemExit(f"error: unknown {what} field {k!r}; valid: {', '.join(sorted(defaults))}")
+        try:
+            out[k] = _parse_value(v.strip(), defaults[k])
+        except ValueError as e:
+            raise SystemExit(f"error: {what} {k}: {e}")
+    return out
+
+
+def build_parser():
+    from daddpg_jax.config import TrainConfig
+    from mjx_envs.core import TaskConfig
+
+    tdocs, edocs = _field_docs(TrainConfig), _field_docs(TaskConfig)
+    tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    edef = {f.name: f.default for f in dataclasses.fields(TaskConfig)}
+    epilog = ["training fields for --set KEY=VALUE (default; meaning):"]
+    epilog += [f"  {k} ({tdef[k]!r}): {tdocs.get(k, '')}" for k in tdef]
+    epilog += ["", "env fields for --env KEY=VALUE (reach default; meaning):"]
+    epilog += [f"  {k} ({edef[k]!r}): {edocs.get(k, '')}" for k in edef]
+    p = argparse.ArgumentParser(
+        prog="run.py", description=__doc__, epilog="\n".join(epilog),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", choices=["reach", "push", "pickup", "pot"], default=None,
+                   help="task to train (default reach; taken from config.json with --resume)")
+    p.add_argument("--num-envs", type=int, default=None,
+                   help="parallel environments; the task preset scales batch size and updates per "
+                        "cycle with it (default: the preset's, 2 on CPU)")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="total epochs (an epoch = n_cycles cycles + evaluation); with --resume the "
+                        "run continues until this many epochs are done (default: the task preset)")
+    p.add_argument("--seed", type=int, default=None, help="training seed (default 0)")
+    p.add_argument("--algo", choices=["daddpg", "maddpg", "ddpg", "single"], default=None,
+                   help="daddpg: actors see both arms (the paper); maddpg: actors see their own arm, "
+                        "critics both; ddpg: independent arms; single: one agent, 8-d action")
+    p.add_argument("--her", choices=["future", "final", "none"], default=None,
+                   help="hindsight relabelling strategy (future uses k=4: 80%% relabelled)")
+    p.add_argument("--physics", choices=["auto", "mjx", "c"], default=None,
+                   help="physics engine: auto = MJX on an accelerator, MuJoCo C engine on CPU")
+    p.add_argument("--out", default=None,
+                   help="run directory (default runs/<task>_<algo>_s<seed>_<time>)")
+    p.add_argument("--resume", metavar="RUN_DIR", default=None,
+                   help="continue the run in RUN_DIR from its latest checkpoint (its config.json "
+                        "is reused; --epochs may raise the total)")
+    p.add_argument("--save-buffer", action="store_true",
+                   help="store the replay buffer in checkpoints (large; makes --resume bit-exact)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
+                   help="override any training field (listed below); repeatable")
+    p.add_argument("--env", action="append", metavar="KEY=VALUE", default=[],
+                   help="override any env field of the task's default_config() (listed below); repeatable")
+    p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="stop after the epoch during which this much wall time has passed")
+    p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
+    return p
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    from daddpg_jax import checkpoint as ckpt
+    from daddpg_jax.config import TrainConfig, preset
+    from daddpg_jax.runner import NonFiniteLoss, train
+    from mjx_envs.core import TaskConfig
+
+    tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    edef = {f.name: f.default for f in dataclasses.fields(TaskConfig)}
+    env_over = _kv(args.env, edef, "--env")
+    sets = _kv(args.set, tdef, "--set")
+    if args.resume:
+        run_dir = args.resume
+        if not os.path.exists(os.path.join(run_dir, "config.json")):
+            parser.error(f"--resume: {run_dir}/config.json not found")
+        cfg, payload = ckpt.load_config(run_dir)
+        env_over = {**payload.get("env_overrides", {}), **env_over}
+        for name in ("task", "num_envs", "algo", "her", "physics", "seed"):
+            v = getattr(args, name)
+            if v is not None and v != getattr(cfg, name):
+                parser.error(f"--resume: --{name.replace('_', '-')} differs from the run's "
+                             f"config ({getattr(cfg, name)!r}); start a new run instead")
+        over = dict(sets)
+    else:
+        task = args.task or "reach"
+        over = preset(task, args.num_envs)
+        for name in ("algo", "her", "physics", "seed"):
+            v = getattr(args, name)
+            if v is not None:
+                over[name] = v
+        over.update(sets)
+        cfg = TrainConfig(**over)
+        run_dir = args.out or os.path.join(
+            "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+        over = {}
+    if args.epochs is not None:
+        over["n_epochs"] = args.epochs
+    if args.save_buffer:
+        over["save_buffer"] = True
+    cfg = cfg.replace(**over)
+
+    print(f"run dir: {os.path.abspath(run_dir)}")
+    print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
+          f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
+          f"{cfg.n_epochs} epochs", flush=True)
+    total = cfg.n_epochs * cfg.n_cycles
+    bar = None
+    progress = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="cycle", dynamic_ncols=True, desc=f"{cfg.task}/{cfg.algo}")
+        t_last = [time.perf_counter()]
+        steps_per_cycle = cfg.num_envs * 50
+
+        def progress(m):
+            now = time.perf_counter()
+            sps = steps_per_cycle / max(now - t_last[0], 1e-9)
+            t_last[0] = now
+            bar.update(1)
+            bar.set_postfix(train_success=f"{float(m['success']):.2f}",
+                            steps_s=f"{sps:,.0f}", refresh=False)
+
+    def on_epoch(row):
+        msg = (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
+               f"test_success {row['test_success_rate']:.3f}  "
+               f"arm_contact {row['test_arm_contact_rate']:.3f}  "
+               f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
+        if bar is not None:
+            bar.n = row["epoch"] * cfg.n_cycles
+            bar.refresh()
+            bar.write(msg)
+        else:
+            print(msg, flush=True)
+
+    try:
+        res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
+                    progress=progress, on_epoch=on_epoch, command=" ".join(sys.argv),
+                    time_budget_s=args.time_budget)
+    except NonFiniteLoss as e:
+        if bar is not None:
+            bar.close()
+        print(f"error: {e}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        print(f"\ninterrupted; resume with: python experiments/run.py --resume {run_dir}",
+              file=sys.stderr)
+        return 130
+    if bar is not None:
+        bar.close()
+    print(res.summary())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
