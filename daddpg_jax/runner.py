@@ -81,17 +81,19 @@ def make_env(cfg: TrainConfig, env_overrides: Optional[dict] = None):
 def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
           resume: bool = False, progress: Optional[Callable[[dict], None]] = None,
           on_epoch: Optional[Callable[[dict], None]] = None, plot: bool = True,
-          command: Optional[str] = None, time_budget_s: Optional[float] = None) -> RunResult:
+          command: Optional[str] = None, time_budget_s: Optional[float] = None,
+          env: Any = None) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
     on_epoch: called with each epoch's CSV row after it is written.
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
+    env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
     """
     env_overrides = dict(env_overrides or {})
     os.makedirs(run_dir, exist_ok=True)
     metrics_path = os.path.join(run_dir, "metrics.csv")
-    env = make_env(cfg, env_overrides)
+    env = env if env is not None else make_env(cfg, env_overrides)
 
     from daddpg_jax.train import make_train_fns
 
@@ -116,8 +118,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
         if os.path.exists(metrics_path):
             os.remove(metrics_path)
         ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
-                         env_config=_jsonable(env.config.__dict__), command=command,
-                         num_agents=cfg.num_agents, physics_resolved=env.physics)
+                         env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))), command=command,
+                         num_agents=cfg.num_agents, physics_resolved=getattr(env, "physics", None))
 
     t_start = time.perf_counter()
     last = rows[-1] if rows else None

@@ -1,0 +1,106 @@
+"""The on-disk run (runner + CLI): outputs, resume equality, non-finite stop, --help."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from daddpg_jax import checkpoint as ckpt
+from daddpg_jax.config import TrainConfig
+from daddpg_jax.runner import METRIC_COLUMNS, NonFiniteLoss, train
+from tests import toy_env
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+T = 10
+TINY = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=2, n_batches=3, batch_size=32,
+                   buffer_size=20 * T * 4, n_test_episodes=8, seed=3, save_buffer=True)
+
+
+@pytest.fixture(scope="module")
+def env():
+    return toy_env.make(episode_length=T)
+
+
+def _rows(run_dir):
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        return list(csv.DictReader(f))
+
+
+def _learning_columns(rows):
+    skip = {"wall_time", "env_steps_per_s", "updates_per_s"}
+    return [{k: v for k, v in r.items() if k not in skip} for r in rows]
+
+
+def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
+    a, b = str(tmp_path / "a"), str(tmp_path / "b")
+    full = train(TINY.replace(n_epochs=2), a, env=env)
+    assert full.epochs == 2 and full.env_steps == 2 * TINY.n_cycles * TINY.num_envs * T
+    for name in ("config.json", "metrics.csv", "learning_curve.png"):
+        assert os.path.getsize(os.path.join(a, name)) > 0, name
+    assert ckpt.all_steps(a) == [1, 2]
+    payload = json.load(open(os.path.join(a, "config.json")))
+    assert payload["config"]["seed"] == 3 and "jax" in payload["versions"]
+    rows = _rows(a)
+    assert list(rows[0].keys()) == list(METRIC_COLUMNS)
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+
+    train(TINY.replace(n_epochs=1), b, env=env)
+    resumed = train(TINY.replace(n_epochs=2), b, env=env, resume=True)
+    assert resumed.epochs == 2
+    assert _learning_columns(_rows(b)) == _learning_columns(rows)
+
+
+def test_resume_without_checkpoint_fails_clearly(env, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
+
+
+def test_nonfinite_loss_stops_and_keeps_last_good_checkpoint(env, tmp_path):
+    run = str(tmp_path / "nan")
+    train(TINY.replace(n_epochs=1, save_buffer=False), run, env=env)
+    with pytest.raises(NonFiniteLoss, match="last good checkpoint"):
+        train(TINY.replace(n_epochs=2, save_buffer=False, lr_critic=float("nan")), run,
+              env=env, resume=True)
+    assert ckpt.all_steps(run) == [1]
+    assert [int(r["epoch"]) for r in _rows(run)] == [1]
+
+
+def test_cli_help_explains_every_flag_and_field():
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "run.py"), "--help"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    for flag in ("--task", "--num-envs", "--epochs", "--seed", "--algo", "--her", "--physics",
+                 "--out", "--resume", "--set", "--env", "--save-buffer", "--time-budget"):
+        assert flag in text, flag
+    for field in ("gamma", "polyak", "noise_eps", "random_eps", "batch_size", "max_delta",
+                  "distance_threshold", "arm_contact_penalty"):
+        assert f"  {field} (" in text, field
+
+
+def test_cli_rejects_unknown_fields(tmp_path):
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "run.py"),
+                          "--set", "gama=0.9", "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode != 0 and "unknown --set field 'gama'" in out.stderr
+
+
+def test_cli_trains_reach_tiny(tmp_path):
+    """The real reach env through the CLI: one tiny epoch writes every output."""
+    run = str(tmp_path / "reach")
+    cmd = [sys.executable, os.path.join(ROOT, "experiments", "run.py"), "--task", "reach",
+           "--epochs", "1", "--physics", "c", "--out", run, "--no-progress",
+           "--set", "n_cycles=2", "--set", "n_batches=2", "--set", "hidden=32,32",
+           "--set", "n_test_episodes=10", "--set", "buffer_size=10000"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "test success" in out.stdout
+    rows = _rows(run)
+    assert len(rows) == 1 and int(rows[0]["env_steps"]) == 2 * 2 * 50
+    assert 0.0 <= float(rows[0]["test_success_rate"]) <= 1.0
+    assert ckpt.all_steps(run) == [1]
+    assert os.path.exists(os.path.join(run, "learning_curve.png"))
