@@ -20,6 +20,8 @@ import subprocess
 from typing import Optional
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
 from flax import serialization
 
@@ -89,7 +91,13 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
     with _manager(run_dir) as mngr:
         out = mngr.restore(step, args=ocp.args.Composite(**items))
     full = dict(out["state"])
-    full["buffer"] = out["buffer"] if restore_buffer else buffer
+    if restore_buffer:
+        full["buffer"] = out["buffer"]
+    # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys
+    # its cache on that, so re-place the restored arrays uncommitted: no recompile on resume.
+    full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
+    if not restore_buffer:
+        full["buffer"] = buffer
     return serialization.from_state_dict(template, full), step
 
 

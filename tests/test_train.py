@@ -106,6 +106,7 @@ def test_checkpoint_round_trip_and_resume(fns, two_epochs, tmp_path):
     assert step == 1 and tree_equal(restored, s1)
     # 1 epoch + resume + 1 epoch == 2 epochs (buffer saved)
     r2, rm2 = fns.train_epoch(restored)
+    assert fns.train_epoch._cache_size() == 1   # a restored state does not trigger a recompile
     assert tree_equal(r2, s2)
     for k in m2:
         np.testing.assert_array_equal(m2[k], rm2[k], err_msg=k)
