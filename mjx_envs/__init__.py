@@ -7,8 +7,9 @@ from __future__ import annotations
 
 from mjx_envs.core import DualArmEnv, State, TaskConfig, replace_config
 from mjx_envs.reach import Reach
+from mjx_envs.push import Push
 
-_REGISTRY = {"reach": Reach}
+_REGISTRY = {"reach": Reach, "push": Push}
 TASKS = ("reach", "push", "pickup", "pot")
 
 

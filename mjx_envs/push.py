@@ -1,0 +1,129 @@
+"""Push: two arms move a long bar across the table (paper section 4.1, Fig. 3).
+
+The bar (assets/scene_push.xml) has a wide middle, a narrow neck at each end and an end cap
+beyond it. Fingers are locked half open, so a gripper lowered over a neck straddles it between
+the middle and the cap: it can shove the bar in any direction along the table but cannot grasp
+or lift it. Both end targets come from ONE sampled bar pose (x, y, yaw) on the table, so the two
+targets are always consistent with the rigid bar; the yaw range keeps end 0 (+y) on the left
+arm's side. Each arm's achieved goal is its end of the bar (the neck centre). Success when both
+ends are within 0.05 m of their targets.
+
+``ObjectPoseTask`` is shared with Pick up and Pot: an object with a free joint, two object points
+(one per arm) at fixed offsets in the object frame, goals from one sampled object pose.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_envs.core import DualArmEnv, TaskConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectTaskConfig(TaskConfig):
+    """TaskConfig plus the ranges of the object's initial and goal poses."""
+
+    init_low: tuple = (0.245, -0.005, -0.10)
+    """Lower bound of the object's initial pose on the table: (x, y, yaw) in m, m, rad."""
+    init_high: tuple = (0.255, 0.005, 0.10)
+    """Upper bound of the object's initial pose on the table."""
+    target_low: tuple = (0.25, 0.0, 0.0, -0.15)
+    """Lower bound of the goal pose of the object: (x, y, height above its resting height, yaw)."""
+    target_high: tuple = (0.25, 0.0, 0.0, 0.15)
+    """Upper bound of the goal pose of the object."""
+    target_radius: tuple = (0.0, 0.0)
+    """(min, max) length of an extra horizontal offset of the goal pose in a uniformly random
+    direction: keeps goals on the table away from the initial pose (push)."""
+
+
+def yaw_quat(yaw):
+    """Quaternion (w, x, y, z) of a rotation by ``yaw`` about world z."""
+    return jnp.stack([jnp.cos(yaw / 2), jnp.zeros_like(yaw), jnp.zeros_like(yaw), jnp.sin(yaw / 2)],
+                     axis=-1)
+
+
+def object_points(pos, yaw, offsets):
+    """World positions [2, 3] of the two object points of an object at ``pos`` [3] with ``yaw``."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    rot = jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], jnp.float32)
+    return pos[None, :] + jnp.asarray(offsets, jnp.float32) @ rot.T
+
+
+class ObjectPoseTask(DualArmEnv):
+    """An object with a free joint named ``object_joint``; goals from one sampled object pose."""
+
+    object_joint = "bar"
+    object_body = "bar"
+    point_sites = ("end_l", "end_r")
+
+    def __init__(self, config=None, physics="auto"):
+        super().__init__(config, physics)
+        m = self.mj_model
+        self._obj_qadr = int(m.jnt_qposadr[m.joint(self.object_joint).id])
+        self._rest_z = float(self._home_qpos[self._obj_qadr + 2])
+        body = m.body(self.object_body).id
+        offs = []
+        for name in self.point_sites:
+            site = m.site(name)
+            if int(site.bodyid[0]) != body:
+                raise ValueError(f"site {name} must belong to body {self.object_body}")
+            offs.append(np.asarray(site.pos, np.float32))
+        self.point_offsets = np.stack(offs)  # [2, 3] in the object frame
+
+    def _sample_pose(self, key, low, high):
+        lo = jnp.asarray(np.asarray(low, np.float32))
+        hi = jnp.asarray(np.asarray(high, np.float32))
+        return jax.random.uniform(key, lo.shape, jnp.float32, lo, hi)
+
+    def _sample_goal(self, key):
+        k_pose, k_r, k_phi = jax.random.split(key, 3)
+        x, y, h, yaw = self._sample_pose(k_pose, self.config.target_low, self.config.target_high)
+        r_lo, r_hi = self.config.target_radius
+        r = jax.random.uniform(k_r, (), jnp.float32, r_lo, r_hi)
+        phi = jax.random.uniform(k_phi, (), jnp.float32, 0.0, 2 * np.pi)
+        pos = jnp.stack([x + r * jnp.cos(phi), y + r * jnp.sin(phi), self._rest_z + h])
+        return object_points(pos, yaw, self.point_offsets)
+
+    def _init_qpos(self, key):
+        x, y, yaw = self._sample_pose(key, self.config.init_low, self.config.init_high)
+        obj = jnp.concatenate([jnp.stack([x, y, jnp.float32(self._rest_z)]), yaw_quat(yaw)])
+        qpos = jnp.asarray(self._home_qpos)
+        return qpos.at[self._obj_qadr:self._obj_qadr + 7].set(obj)
+
+    def _achieved_goal(self, arm, obj):
+        return obj["object_point"]
+
+    def object_pos(self, state):
+        """Object body position [..., 3] (from the obj_pos sensor)."""
+        return self.sensors.read(self.backend.sensordata(state.data), "obj_pos")
+
+
+class Push(ObjectPoseTask):
+    task_name = "push"
+
+    @classmethod
+    def default_config(cls) -> ObjectTaskConfig:
+        return ObjectTaskConfig(
+            scene="scene_push.xml",
+            distance_threshold=0.05,
+            lock_fingers=True,
+            locked_opening=0.025,  # 0.05 m gap: straddles the 0.03 m neck, never squeezes it
+            cone="elliptic",
+            timestep=0.005,  # contacts at 0.01 s tunnel and eject the bar at 1.25 m/s pushes
+            n_substeps=8,  # control period stays 0.04 s
+            goal_scale=1.0,
+            team_scale=0.0,
+            arm_contact_penalty=0.0,
+            # bar centre within 5 mm of (0.25, 0), yaw +-0.1 rad; the goal pose lies 0.06-0.08 m
+            # away in any direction with yaw +-0.15 rad, so no episode starts solved (the mean of
+            # the two end displacements is the centre displacement, >= 0.053 m > threshold).
+            init_low=(0.245, -0.005, -0.10),
+            init_high=(0.255, 0.005, 0.10),
+            target_low=(0.25, 0.0, 0.0, -0.15),
+            target_high=(0.25, 0.0, 0.0, 0.15),
+            target_radius=(0.06, 0.08),
+        )

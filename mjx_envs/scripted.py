@@ -1,0 +1,86 @@
+"""Scripted controllers for the contact tasks: pure functions ``obs -> action``.
+
+Each controller reads only the env's observation dict (``observation`` [..., 2, 25],
+``achieved_goal`` [..., 2, 3], ``desired_goal`` [..., 2, 3]) and returns the 8-d action
+[..., 8]. No hidden state: the phase of each arm (approach, descend, close, carry) is inferred
+from the observation itself, so a controller is jit-able, vmap-able and can drive the env from
+inside ``lax.scan``. They serve as tests of the physics (a task is solvable) and as demos; they
+are not part of training.
+
+Conventions shared with the scenes: the object point of each arm (bar neck / pot handle) is the
+place its gripper holds; the tool centre point sits ``GRASP_DZ`` above it when holding.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from mjx_envs import observation as obs_lib
+
+_L = obs_lib.obs_layout()
+GRASP_DZ = 0.0
+"""Tool centre point height above the object point while holding it, metres."""
+HOVER_DZ = 0.07
+"""Height above the object point at which a gripper travels before descending, metres."""
+
+
+def _split(obs):
+    o = obs["observation"]
+    grip = o[..., slice(*_L["grip_pos"])]
+    fingers = o[..., slice(*_L["fingers"])]
+    return grip, fingers, obs["achieved_goal"], obs["desired_goal"]
+
+
+def _to_action(delta, finger, max_delta):
+    """Per-arm displacement [..., 2, 3] and finger command [..., 2] -> action [..., 8]."""
+    a = jnp.clip(delta / max_delta, -1.0, 1.0)
+    a = jnp.concatenate([a, jnp.clip(finger, -1.0, 1.0)[..., None]], axis=-1)
+    return a.reshape(a.shape[:-2] + (8,)).astype(jnp.float32)
+
+
+def _approach(grip, point, xy_tol=0.008):
+    """Move above ``point``, then straight down to the holding height.
+
+    Returns (delta [..., 2, 3], at_point [..., 2]): at_point when the gripper is aligned over the
+    point and at the holding height.
+    """
+    e = point - grip
+    exy = jnp.linalg.norm(e[..., :2], axis=-1)
+    z_hold = point[..., 2] + GRASP_DZ
+    z_hover = point[..., 2] + HOVER_DZ
+    low = grip[..., 2] < z_hover - 0.02
+    aligned = exy < xy_tol
+    near = exy < 2.5 * xy_tol
+    # far and low: rise first (never sweep through the object); far and high: travel at hover
+    # height; aligned: descend (correcting xy on the way).
+    rise = jnp.stack([jnp.zeros_like(exy), jnp.zeros_like(exy), z_hover - grip[..., 2]], -1)
+    travel = jnp.concatenate([e[..., :2], (z_hover - grip[..., 2])[..., None]], -1)
+    descend = jnp.concatenate([e[..., :2], (z_hold - grip[..., 2])[..., None]], -1)
+    delta = jnp.where((aligned | (near & low))[..., None], descend,
+                      jnp.where(low[..., None], rise, travel))
+    at_point = near & (jnp.abs(grip[..., 2] - z_hold) < 0.012)
+    return delta, at_point
+
+
+def push_policy(obs, max_delta: float = 0.05):
+    """Push: straddle each neck with the (locked, half-open) fingers, then drag both ends to
+    their targets together; an arm that is in place waits for the other."""
+    grip, _, point, goal = _split(obs)
+    delta, at_point = _approach(grip, point)
+    both = jnp.all(at_point, axis=-1, keepdims=True)
+    carry = goal - point
+    carry = carry.at[..., 2].set(point[..., 2] + GRASP_DZ - grip[..., 2])
+    # keep the gripper centred on its neck while dragging
+    carry = carry.at[..., :2].add(0.5 * (point - grip)[..., :2])
+    wait = jnp.zeros_like(delta)
+    delta = jnp.where(both[..., None], carry, jnp.where(at_point[..., None], wait, delta))
+    return _to_action(delta, jnp.zeros(delta.shape[:-1]), max_delta)
+
+
+POLICIES = {"push": push_policy}
+
+
+def get_policy(task: str):
+    if task not in POLICIES:
+        raise ValueError(f"no scripted controller for task {task!r}; available: {sorted(POLICIES)}")
+    return POLICIES[task]
