@@ -8,8 +8,9 @@ from __future__ import annotations
 from mjx_envs.core import DualArmEnv, State, TaskConfig, replace_config
 from mjx_envs.reach import Reach
 from mjx_envs.push import Push
+from mjx_envs.pickup import Pickup
 
-_REGISTRY = {"reach": Reach, "push": Push}
+_REGISTRY = {"reach": Reach, "push": Push, "pickup": Pickup}
 TASKS = ("reach", "push", "pickup", "pot")
 
 

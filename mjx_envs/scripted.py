@@ -77,7 +77,44 @@ def push_policy(obs, max_delta: float = 0.05):
     return _to_action(delta, jnp.zeros(delta.shape[:-1]), max_delta)
 
 
-POLICIES = {"push": push_policy}
+HOLD_OPENING = (0.004, 0.022)
+"""Finger opening range (per finger, metres) that means "closed on a neck or handle": a closed
+gripper on nothing reads ~0, an open one 0.04."""
+
+
+def _holding(fingers, at_point):
+    q = jnp.mean(fingers, axis=-1)
+    return at_point & (q > HOLD_OPENING[0]) & (q < HOLD_OPENING[1])
+
+
+def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
+    """Pick up / Pot: both grippers approach their object points open, descend, close; once BOTH
+    hold, they carry the object to the goal together. ``arms`` selects which arms take part (the
+    others stay where they are, open): a one-armed variant is used to show that one gripper
+    cannot lift the bar level."""
+    grip, fingers, point, goal = _split(obs)
+    delta, at_point = _approach(grip, point)
+    holding = _holding(fingers, at_point)
+    active = jnp.asarray(arms)
+    both = jnp.all(holding | ~active, axis=-1, keepdims=True)
+    carry = goal - point
+    carry = carry.at[..., :2].add(0.5 * (point - grip)[..., :2])
+    wait = jnp.zeros_like(delta)
+    delta = jnp.where(both[..., None] & holding[..., None], carry,
+                      jnp.where(at_point[..., None], wait, delta))
+    delta = jnp.where(active[:, None], delta, 0.0)
+    # open while approaching, close once at the point (and keep closed while carrying)
+    finger = jnp.where(at_point | holding, -1.0, 1.0)
+    finger = jnp.where(active, finger, 1.0)
+    return _to_action(delta, finger, max_delta)
+
+
+def one_arm_grasp_policy(obs, max_delta: float = 0.05):
+    """Only the left arm grasps its end and carries it to its goal."""
+    return grasp_policy(obs, max_delta, arms=(True, False))
+
+
+POLICIES = {"push": push_policy, "pickup": grasp_policy, "pot": grasp_policy}
 
 
 def get_policy(task: str):
