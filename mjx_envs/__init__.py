@@ -9,8 +9,9 @@ from mjx_envs.core import DualArmEnv, State, TaskConfig, replace_config
 from mjx_envs.reach import Reach
 from mjx_envs.push import Push
 from mjx_envs.pickup import Pickup
+from mjx_envs.pot import Pot
 
-_REGISTRY = {"reach": Reach, "push": Push, "pickup": Pickup}
+_REGISTRY = {"reach": Reach, "push": Push, "pickup": Pickup, "pot": Pot}
 TASKS = ("reach", "push", "pickup", "pot")
 
 

@@ -50,14 +50,18 @@ def _approach(grip, point, xy_tol=0.008):
     z_hover = point[..., 2] + HOVER_DZ
     low = grip[..., 2] < z_hover - 0.02
     aligned = exy < xy_tol
-    near = exy < 2.5 * xy_tol
+    near = exy < 1.5 * xy_tol
+    zero = jnp.zeros_like(exy)
+    # aligned: descend (correcting xy on the way); near but not aligned and low: correct xy only;
     # far and low: rise first (never sweep through the object); far and high: travel at hover
-    # height; aligned: descend (correcting xy on the way).
-    rise = jnp.stack([jnp.zeros_like(exy), jnp.zeros_like(exy), z_hover - grip[..., 2]], -1)
-    travel = jnp.concatenate([e[..., :2], (z_hover - grip[..., 2])[..., None]], -1)
+    # height.
     descend = jnp.concatenate([e[..., :2], (z_hold - grip[..., 2])[..., None]], -1)
-    delta = jnp.where((aligned | (near & low))[..., None], descend,
-                      jnp.where(low[..., None], rise, travel))
+    correct = jnp.concatenate([e[..., :2], zero[..., None]], -1)
+    rise = jnp.stack([zero, zero, z_hover - grip[..., 2]], -1)
+    travel = jnp.concatenate([e[..., :2], (z_hover - grip[..., 2])[..., None]], -1)
+    delta = jnp.where(aligned[..., None], descend,
+                      jnp.where((near & low)[..., None], correct,
+                                jnp.where(low[..., None], rise, travel)))
     at_point = near & (jnp.abs(grip[..., 2] - z_hold) < 0.012)
     return delta, at_point
 
