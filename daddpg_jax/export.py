@@ -1,0 +1,181 @@
+"""Export a trained run to one NumPy ``.npz`` that the robot side loads without JAX.
+
+JAX side of the deployment path (``daddpg_jax/deploy.py`` is the NumPy side)::
+
+    from daddpg_jax.export import export_run
+    export_run("runs/reach", "policy.npz")            # latest checkpoint
+    export_run("runs/reach", "policy.npz", step=2)    # a given checkpoint
+
+File contents (``FORMAT_VERSION`` 1; every array float32, no pickled objects):
+
+==========================  ==============================================================
+key                         value
+==========================  ==============================================================
+``actor/W{i}``              [A, in_i, out_i] weights of layer i, agent axis first
+``actor/b{i}``              [A, out_i] biases of layer i
+``obs_norm/mean``, ``std``  [2, obs_size] per-arm observation statistics (std already floored
+                            at ``norm_eps``, computed by the trainer's own function)
+``goal_norm/mean``, ``std`` [2, 3] per-arm goal statistics
+``meta``                    JSON text: format version, task, algo, layer sizes, activations,
+                            normalizer clip values and eps, action scaling, observation layout,
+                            the env settings a robot needs, and where the weights came from
+==========================  ==============================================================
+
+``A`` is 2 (one actor per arm; arm 0 = left) or 1 for ``single`` (one actor, 8-d output).
+The actor is ``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
+``daddpg_jax.networks.actor_inputs``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Optional
+
+import numpy as np
+
+FORMAT_VERSION = 1
+
+
+class ExportError(RuntimeError):
+    """A run cannot be exported (no checkpoint, missing config, ...); the message says why."""
+
+
+def _env_settings(env) -> dict:
+    """Settings of ``env`` that the robot side needs (plain JSON values)."""
+    cfg = env.config
+
+    def tl(x):
+        return np.asarray(x, np.float64).tolist()
+
+    return dict(
+        scene=str(cfg.scene),
+        episode_length=int(cfg.episode_length),
+        n_substeps=int(cfg.n_substeps),
+        timestep=float(cfg.timestep),
+        dt=float(env.dt),
+        cone=str(cfg.cone),
+        max_delta=float(cfg.max_delta),
+        lock_fingers=bool(cfg.lock_fingers),
+        locked_opening=float(cfg.locked_opening),
+        finger_stroke=float(cfg.finger_stroke),
+        distance_threshold=float(cfg.distance_threshold),
+        arm_clearance=float(cfg.arm_clearance),
+        workspace_low=tl(cfg.workspace_low),
+        workspace_high=tl(cfg.workspace_high),
+        goal_low=tl(cfg.goal_low),
+        goal_high=tl(cfg.goal_high),
+    )
+
+
+def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, Any]:
+    """The export's arrays and metadata from a TrainState (no file written).
+
+    ``state``: a ``daddpg_jax.train.TrainState`` (only ``agent.actor`` and the normalizers are
+    read); ``cfg``: its TrainConfig; ``env``: the env it was trained on.
+    """
+    import jax
+
+    from daddpg_jax import networks as nets
+    from daddpg_jax import normalizer as norm
+    from mjx_envs import observation as obs_lib
+
+    actor = jax.device_get(state.agent.actor)
+    layers = actor["params"]
+    names = sorted(layers, key=lambda n: int(n.split("_")[-1]))  # Dense_0, Dense_1, ...
+    arrays: dict[str, Any] = {}
+    sizes = []
+    for i, name in enumerate(names):
+        w = np.asarray(layers[name]["kernel"], np.float32)
+        b = np.asarray(layers[name]["bias"], np.float32)
+        arrays[f"actor/W{i}"] = w
+        arrays[f"actor/b{i}"] = b
+        sizes.append([int(w.shape[1]), int(w.shape[2])])
+    n_agents = int(arrays["actor/W0"].shape[0])
+    for key, ns in (("obs_norm", state.obs_norm), ("goal_norm", state.goal_norm)):
+        arrays[f"{key}/mean"] = np.asarray(jax.device_get(ns.mean), np.float32)
+        arrays[f"{key}/std"] = np.asarray(jax.device_get(norm.std(ns, cfg.norm_eps)), np.float32)
+        arrays[f"{key}/count"] = np.asarray(jax.device_get(ns.count), np.float32)
+    settings = _env_settings(env)
+    meta = dict(
+        format_version=FORMAT_VERSION,
+        task=str(cfg.task),
+        algo=str(cfg.algo),
+        num_agents=n_agents,
+        num_arms=int(env.num_arms),
+        obs_size=int(env.obs_size),
+        goal_size=int(env.goal_size),
+        action_size=int(env.action_size),
+        arm_action=int(nets.ARM_ACTION),
+        actor_input_dim=int(nets.input_dims(cfg.algo, env.obs_size, env.goal_size)[0]),
+        layer_sizes=sizes,
+        hidden_activation="relu",
+        output_activation="tanh",
+        normalizer=dict(clip_obs=float(cfg.clip_obs), norm_clip=float(cfg.norm_clip),
+                        norm_eps=float(cfg.norm_eps)),
+        action=dict(low=-1.0, high=1.0, max_delta=settings["max_delta"],
+                    finger_stroke=settings["finger_stroke"],
+                    lock_fingers=settings["lock_fingers"],
+                    locked_opening=settings["locked_opening"],
+                    units="per arm [dx, dy, dz] in max_delta metres per control step, finger "
+                          "in [-1, 1] -> opening (a+1)/2*finger_stroke metres"),
+        obs_layout={k: [int(a), int(b)] for k, (a, b) in obs_lib.obs_layout().items()},
+        obs_fields=[[n, int(k)] for n, k in obs_lib.OBS_FIELDS],
+        arms=["left", "right"],
+        env=settings,
+        source=dict(source or {}),
+    )
+    arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
+    return arrays
+
+
+def write_npz(arrays: dict[str, Any], out) -> str:
+    """Writes the export atomically (temporary file + rename). Returns the path."""
+    out = os.fspath(out)
+    if not out.endswith(".npz"):
+        raise ExportError(f"output file must end in .npz, got {out!r}")
+    d = os.path.dirname(os.path.abspath(out))
+    os.makedirs(d, exist_ok=True)
+    tmp = out[:-4] + ".tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, out)
+    return out
+
+
+def export_state(state, cfg, env, out, source: Optional[dict] = None) -> str:
+    """Exports a TrainState held in memory (tests, notebooks) to ``out``."""
+    return write_npz(policy_arrays(state, cfg, env, source), out)
+
+
+def export_run(run_dir, out, step: Optional[int] = None) -> str:
+    """Exports checkpoint ``step`` (default: latest) of the run in ``run_dir`` to ``out``.
+
+    Raises ExportError with a clear message when the run has no config or no checkpoint.
+    """
+    import jax
+
+    from daddpg_jax import checkpoint as ckpt
+    from daddpg_jax.runner import make_env
+    from daddpg_jax.train import make_train_fns
+
+    run_dir = os.fspath(run_dir)
+    if not os.path.isdir(run_dir):
+        raise ExportError(f"run directory {run_dir!r} does not exist")
+    if not os.path.exists(os.path.join(run_dir, "config.json")):
+        raise ExportError(f"{run_dir!r} has no config.json: not a training run directory")
+    steps = ckpt.all_steps(run_dir)
+    if not steps:
+        raise ExportError(f"run {run_dir!r} has no checkpoint under {ckpt.checkpoint_dir(run_dir)} "
+                          "(train at least one epoch first)")
+    if step is not None and int(step) not in steps:
+        raise ExportError(f"run {run_dir!r} has no checkpoint {step}; available: {steps}")
+    cfg, payload = ckpt.load_config(run_dir)
+    env = make_env(cfg, payload.get("env_overrides") or {})
+    fns = make_train_fns(env, cfg)
+    # abstract template: shapes only, so the (large) replay buffer is never allocated
+    template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
+    state, used = ckpt.restore(run_dir, template, step, restore_buffer=False)
+    source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used),
+                  git_revision=payload.get("git_revision"), env_overrides=payload.get("env_overrides"),
+                  train_config=cfg.to_dict())
+    return export_state(state, cfg, env, out, source)
