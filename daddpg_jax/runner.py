@@ -82,13 +82,15 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
           resume: bool = False, progress: Optional[Callable[[dict], None]] = None,
           on_epoch: Optional[Callable[[dict], None]] = None, plot: bool = True,
           command: Optional[str] = None, time_budget_s: Optional[float] = None,
-          env: Any = None) -> RunResult:
+          env: Any = None, update_progress: Optional[Callable[[int], None]] = None,
+          update_tick: int = 0) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
     on_epoch: called with each epoch's CSV row after it is written.
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
     env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
+    update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
     """
     env_overrides = dict(env_overrides or {})
     os.makedirs(run_dir, exist_ok=True)
@@ -97,7 +99,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
 
     from daddpg_jax.train import make_train_fns
 
-    fns = make_train_fns(env, cfg, progress=progress)
+    fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
+                         update_tick=update_tick)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     rows = _read_rows(metrics_path) if resume else []
     start_epoch, wall_offset = 0, 0.0

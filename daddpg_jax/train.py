@@ -56,11 +56,15 @@ class TrainFns(NamedTuple):
     horizon: int
 
 
-def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None) -> TrainFns:
+def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
+                   update_progress: Optional[Callable] = None, update_tick: int = 0) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
     with that cycle's metrics as NumPy arrays (for a progress bar); None compiles no callback.
+    update_progress: optional host function `update_progress(n)` called after every
+    `update_tick` gradient updates inside a cycle with n = updates done in that cycle, so a
+    progress bar moves during long cycles (large num_envs on a CPU); 0 or None compiles none.
     """
     T = int(env.episode_length)
     n_arms = int(env.num_arms)
@@ -148,14 +152,22 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None) -
         goal_norm = norm.update(state.goal_norm, nt["g"], cfg.clip_obs)
         state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
 
-        def one_update(agent, k):
+        def one_update(agent, xs):
+            k, i = xs
             b = replay.sample(k, buf, cfg.batch_size, cfg.her, future_p, env.compute_reward)
             o, g = normalize_inputs(state, b["o"], b["g"])
             o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
             batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
-            return agent_lib.update(agent, batch, learner)
+            out = agent_lib.update(agent, batch, learner)
+            if update_progress is not None and update_tick:
+                jax.lax.cond((i + 1) % update_tick == 0,
+                             lambda: jax.debug.callback(update_progress, i + 1, ordered=False),
+                             lambda: None)
+            return out
 
-        a_state, um = jax.lax.scan(one_update, state.agent, jax.random.split(k_upd, cfg.n_batches))
+        a_state, um = jax.lax.scan(
+            one_update, state.agent,
+            (jax.random.split(k_upd, cfg.n_batches), jnp.arange(cfg.n_batches, dtype=jnp.int32)))
         a_state = agent_lib.update_targets(a_state, cfg.polyak)
         um = jax.tree.map(lambda x: jnp.mean(x, 0), um)
         nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"])) & jnp.all(jnp.isfinite(um["actor_loss"])))

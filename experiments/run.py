@@ -171,22 +171,33 @@ def main(argv=None):
           f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
           f"{cfg.n_epochs} epochs", flush=True)
     total = cfg.n_epochs * cfg.n_cycles
-    bar = None
-    progress = None
+    bar = progress = update_progress = None
+    # Long cycles (many updates, e.g. --num-envs 2048 on a CPU) also move the bar during the
+    # updates: 10 ticks per cycle once a cycle has >= 200 updates.
+    update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
     if not args.no_progress:
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="cycle", dynamic_ncols=True, desc=f"{cfg.task}/{cfg.algo}")
         t_last = [time.perf_counter()]
+        partial = [0.0]  # fraction of the current cycle already shown by update ticks
         steps_per_cycle = cfg.num_envs * 50
 
         def progress(m):
             now = time.perf_counter()
             sps = steps_per_cycle / max(now - t_last[0], 1e-9)
             t_last[0] = now
-            bar.update(1)
+            bar.update(max(1.0 - partial[0], 0.0))
+            partial[0] = 0.0
             bar.set_postfix(train_success=f"{float(m['success']):.2f}",
                             steps_s=f"{sps:,.0f}", refresh=False)
+
+        if update_tick:
+            def update_progress(n):
+                inc = update_tick / cfg.n_batches
+                if partial[0] + inc < 1.0:
+                    partial[0] += inc
+                    bar.update(inc)
 
     def on_epoch(row):
         msg = (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
@@ -203,7 +214,8 @@ def main(argv=None):
     try:
         res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
                     progress=progress, on_epoch=on_epoch, command=" ".join(sys.argv),
-                    time_budget_s=args.time_budget)
+                    time_budget_s=args.time_budget, update_progress=update_progress,
+                    update_tick=update_tick)
     except NonFiniteLoss as e:
         if bar is not None:
             bar.close()
