@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from mjx_envs import observation as obs_lib
 
 _L = obs_lib.obs_layout()
-GRASP_DZ = 0.0
+GRASP_DZ = -0.005
 """Tool centre point height above the object point while holding it, metres."""
 HOVER_DZ = 0.07
 """Height above the object point at which a gripper travels before descending, metres."""
@@ -86,9 +86,17 @@ HOLD_OPENING = (0.004, 0.022)
 gripper on nothing reads ~0, an open one 0.04."""
 
 
-def _holding(fingers, at_point):
+CARRY_STEP = 0.02
+"""Largest move per control step while carrying a grasped object, metres (slower than
+max_delta so that the load does not swing out of a two-point grasp)."""
+
+
+def _holding(grip, fingers, point):
+    """Closed on the object: fingers stopped by it, gripper still around the object point."""
     q = jnp.mean(fingers, axis=-1)
-    return at_point & (q > HOLD_OPENING[0]) & (q < HOLD_OPENING[1])
+    e = point.at[..., 2].add(GRASP_DZ) - grip
+    close = (jnp.linalg.norm(e[..., :2], axis=-1) < 0.02) & (jnp.abs(e[..., 2]) < 0.03)
+    return close & (q > HOLD_OPENING[0]) & (q < HOLD_OPENING[1])
 
 
 def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
@@ -98,11 +106,12 @@ def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
     cannot lift the bar level."""
     grip, fingers, point, goal = _split(obs)
     delta, at_point = _approach(grip, point)
-    holding = _holding(fingers, at_point)
+    holding = _holding(grip, fingers, point)
     active = jnp.asarray(arms)
     both = jnp.all(holding | ~active, axis=-1, keepdims=True)
-    carry = goal - point
-    carry = carry.at[..., :2].add(0.5 * (point - grip)[..., :2])
+    hold = point.at[..., 2].add(GRASP_DZ)
+    carry = goal - point + 0.5 * (hold - grip)  # carry, re-centring the grasp against slip
+    carry = jnp.clip(carry, -CARRY_STEP, CARRY_STEP)
     wait = jnp.zeros_like(delta)
     delta = jnp.where(both[..., None] & holding[..., None], carry,
                       jnp.where(at_point[..., None], wait, delta))
