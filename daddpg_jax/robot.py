@@ -1,0 +1,236 @@
+"""Real-robot conventions for the dual-UR3 policy (NumPy only).
+
+Units: metres, radians, seconds everywhere. Frames:
+
+- **world** (the simulator's and the policy's frame): x forward from the arms' frame towards
+  the table, z up; the left arm (index 0) at y = +0.25 m, the right arm (index 1) at
+  y = -0.25 m, both bases 0.40 m above the floor (``mjx_envs.ur3.BASE_POS``), each turned by
+  ``BASE_YAW`` = pi about z.
+- **base** (per arm): the UR controller's base frame, in which ``getl()`` reports and
+  ``servoL``/``movel`` take the tool pose ``[x, y, z, rx, ry, rz]`` (position + rotation
+  vector). It equals frame 0 of UR's DH table (``mjx_envs.ur3``), which is what the simulator's
+  arms are built from: ``p_world = R_z(yaw) p_base + base_pos``.
+
+Control: the policy runs every control period ``dt`` = ``timestep * n_substeps`` = 0.04 s
+(25 Hz). Arm i's action ``a[4i:4i+4] = [dx, dy, dz, finger]`` in [-1, 1] moves that arm's
+Cartesian tool target by ``max_delta * clip(a[:3], -1, 1)`` metres in the **world** frame
+(0.05 m per axis at most: up to 1.25 m/s per axis at 25 Hz, so a real robot needs the speed cap
+of ``daddpg_jax.safety``), with the tool pointing straight down; ``finger`` maps to the opening
+of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice that), or to
+``locked_opening`` when the task locks the fingers (reach, push).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Optional
+
+import numpy as np
+
+from mjx_envs import ur3
+
+ARMS = ("l", "r")  # index 0 = left, 1 = right
+CONTROL_PERIOD_S = 0.04
+"""Default env dt: timestep 0.01 s x 4 substeps (the export stores the run's own value)."""
+TOOL_DOWN_QUAT_WORLD = np.array([0.0, 0.70710678, 0.70710678, 0.0])
+"""Fixed tool orientation of the simulator's targets (w, x, y, z), world frame (assets/*.xml)."""
+
+
+def _arm(arm) -> str:
+    if arm in (0, "l", "left"):
+        return "l"
+    if arm in (1, "r", "right"):
+        return "r"
+    raise ValueError(f"arm must be 0/'l'/'left' or 1/'r'/'right', got {arm!r}")
+
+
+def control_period(env: Optional[Mapping] = None) -> float:
+    """Seconds between policy queries: ``env['dt']`` of a policy export, else 0.04 s."""
+    return float(env["dt"]) if env is not None else CONTROL_PERIOD_S
+
+
+def rot_z(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def world_from_base(arm) -> np.ndarray:
+    """4x4 transform world <- base of ``arm`` (same as ``mjx_envs.ur3.base_transform``)."""
+    return ur3.base_transform(_arm(arm))
+
+
+def base_from_world(arm) -> np.ndarray:
+    T = world_from_base(arm)
+    inv = np.eye(4)
+    inv[:3, :3] = T[:3, :3].T
+    inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return inv
+
+
+def base_to_world(arm, p_base) -> np.ndarray:
+    """Points [..., 3] in ``arm``'s base frame -> world frame (m)."""
+    T = world_from_base(arm)
+    return np.asarray(p_base, float) @ T[:3, :3].T + T[:3, 3]
+
+
+def world_to_base(arm, p_world) -> np.ndarray:
+    """Points [..., 3] in the world frame -> ``arm``'s base frame (m)."""
+    T = world_from_base(arm)
+    return (np.asarray(p_world, float) - T[:3, 3]) @ T[:3, :3]
+
+
+def vector_world_to_base(arm, v_world) -> np.ndarray:
+    """Free vectors (displacements, velocities) [..., 3]: rotation only."""
+    return np.asarray(v_world, float) @ world_from_base(arm)[:3, :3]
+
+
+def vector_base_to_world(arm, v_base) -> np.ndarray:
+    return np.asarray(v_base, float) @ world_from_base(arm)[:3, :3].T
+
+
+# -- rotations (UR poses carry a rotation vector) -------------------------------------------
+
+def quat_to_matrix(q) -> np.ndarray:
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_rotvec(R) -> np.ndarray:
+    """Rotation matrix -> rotation vector (axis * angle, rad), as UR poses use."""
+    R = np.asarray(R, float)
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    if angle < 1e-9:
+        return np.zeros(3)
+    if np.pi - angle < 1e-6:  # axis from the symmetric part
+        M = (R + np.eye(3)) / 2.0
+        axis = np.sqrt(np.maximum(np.diag(M), 0.0))
+        k = int(np.argmax(axis))
+        axis = M[k] / np.sqrt(M[k, k])
+        return axis / np.linalg.norm(axis) * angle
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2 * np.sin(angle))
+    return axis * angle
+
+
+def rotvec_to_matrix(r) -> np.ndarray:
+    r = np.asarray(r, float)
+    angle = np.linalg.norm(r)
+    if angle < 1e-12:
+        return np.eye(3)
+    k = r / angle
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def tool_down_rotvec(arm) -> np.ndarray:
+    """The simulator's fixed tool orientation as a rotation vector in ``arm``'s base frame."""
+    R_world = quat_to_matrix(TOOL_DOWN_QUAT_WORLD)
+    R_base = world_from_base(arm)[:3, :3].T @ R_world
+    return matrix_to_rotvec(R_base)
+
+
+# -- actions -> robot commands --------------------------------------------------------------
+
+def split_action(action) -> np.ndarray:
+    """Joint action [8] -> per arm [2, 4], each clipped to [-1, 1]."""
+    a = np.asarray(action, float)
+    if a.shape != (8,):
+        raise ValueError(f"action must have shape [8], got {list(a.shape)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("action contains NaN or infinite values")
+    return np.clip(a.reshape(2, 4), -1.0, 1.0)
+
+
+def cartesian_deltas_world(action, max_delta: float) -> np.ndarray:
+    """Per-arm target displacement this control period, world frame [2, 3] (m)."""
+    return max_delta * split_action(action)[:, :3]
+
+
+def finger_openings(action, finger_stroke: float = 0.04, lock_fingers: bool = False,
+                    locked_opening: float = 0.0) -> np.ndarray:
+    """Per-arm opening of each finger [2] (m); the jaw gap is twice this."""
+    if lock_fingers:
+        return np.full(2, float(locked_opening))
+    return (split_action(action)[:, 3] + 1.0) * 0.5 * float(finger_stroke)
+
+
+def servol_targets(action, tcp_pose_base, max_delta: float, tcp_target_world=None):
+    """``servoL``-style target poses for one control period, each in its arm's base frame.
+
+    action: [8]; tcp_pose_base: [2, 6] each arm's current ``getl()`` pose ([x, y, z, rx, ry, rz]
+    in its base frame); tcp_target_world: [2, 3] the previous targets (world), which the
+    simulator integrates (default: the measured positions). Returns ([2, 6] poses in base
+    frames with the tool pointing down, [2, 3] new targets in world).
+    """
+    pose = np.asarray(tcp_pose_base, float).reshape(2, 6)
+    if tcp_target_world is None:
+        prev = np.stack([base_to_world(i, pose[i, :3]) for i in range(2)])
+    else:
+        prev = np.asarray(tcp_target_world, float).reshape(2, 3)
+    new_world = prev + cartesian_deltas_world(action, max_delta)
+    out = np.zeros((2, 6))
+    for i in range(2):
+        out[i, :3] = world_to_base(i, new_world[i])
+        out[i, 3:] = tool_down_rotvec(i)
+    return out, new_world
+
+
+# -- the client's control loop (sim-to-sim with mjx_envs.numpy_env, or a real robot driver) --
+
+def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, goal=None,
+                deadline_s: Optional[float] = None, grip_slice=(0, 3)) -> dict:
+    """One episode: every control period, query the policy service with the observation built
+    by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
+
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a real-robot driver with the same
+    ``reset``/``command_targets``/``finger_ctrl``/``step_targets``/``target``);
+    client: ``daddpg_jax.server.PolicyClient``; safety: ``daddpg_jax.safety.SafetyFilter``.
+    An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
+    limits' deadline) makes both arms hold. Returns the episode's summary.
+    """
+    import time
+
+    deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
+    res = env.reset(rng=rng, goal=goal)
+    ctrl = env.finger_ctrl(np.zeros(2, np.float32))
+    stops, rtts, errors = 0, [], []
+    clear_min = res.arm_clearance
+    for _ in range(env.episode_length):
+        t0 = time.perf_counter()
+        answer, info = client.act(res.observation, res.desired_goal)
+        rtt = time.perf_counter() - t0
+        rtts.append(rtt * 1e3)
+        action = None if answer is None else safety.validate_action(answer)
+        if action is None or rtt > deadline:
+            why = info.get("error") or ("late" if action is not None else "malformed")
+            errors.append(why)
+            grip = res.observation[:, grip_slice[0]:grip_slice[1]]
+            decision = safety.hold(env.target, measured_tool=grip,
+                                   reason="late" if rtt > deadline and action is not None else "stop")
+            stops += 1
+        else:
+            proposed, ctrl = env.command_targets(action)
+            decision = safety.filter(env.target, proposed, res.link_points)
+        res = env.step_targets(decision.target, ctrl)
+        clear_min = min(clear_min, res.arm_clearance)
+    return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),
+                stops=stops, errors=errors[:5], min_arm_clearance=float(clear_min),
+                rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)))
+
+
+def run_episodes(env, client, safety, episodes: int, seed: int = 0,
+                 deadline_s: Optional[float] = None) -> dict:
+    """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; success rate etc."""
+    rng = np.random.default_rng(seed)
+    eps = [run_episode(env, client, safety, rng=rng, deadline_s=deadline_s)
+           for _ in range(int(episodes))]
+    n = max(len(eps), 1)
+    return dict(episodes=len(eps), success_rate=sum(e["success"] for e in eps) / n,
+                stops=int(sum(e["stops"] for e in eps)),
+                safety_counts=dict(safety.counts),
+                mean_final_distance=float(np.mean([e["final_distance"] for e in eps])) if eps else float("nan"),
+                min_arm_clearance=float(min(e["min_arm_clearance"] for e in eps)) if eps else float("nan"),
+                rtt_ms_p50=float(np.median([e["rtt_ms_p50"] for e in eps])) if eps else float("nan"),
+                rtt_ms_max=float(max(e["rtt_ms_max"] for e in eps)) if eps else float("nan"),
+                first_errors=[err for e in eps for err in e["errors"]][:5])

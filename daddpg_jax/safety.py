@@ -1,0 +1,177 @@
+"""Safety layer between the policy service's answer and the robot's Cartesian targets (NumPy).
+
+Applied every control period by the robot client, in this order:
+
+1. **stop**: no answer, a malformed answer (wrong size, NaN/inf) or one later than the deadline
+   makes both arms hold (targets set to the measured tool positions, fingers unchanged);
+2. **speed cap**: each arm's target displacement this period is scaled down to at most
+   ``max_step`` metres (Euclidean);
+3. **workspace clamp**: targets are clipped to each arm's box;
+4. **arm clearance**: the link points after the move are predicted by moving each arm's
+   distal points (wrist 1, flange, tool centre) with its target displacement and the elbow with
+   half of it (shoulders fixed), and the capsule gap between the arms is computed with
+   ``mjx_envs.observation.arm_clearance`` (the trainer's own arm-contact check). A move whose
+   predicted gap is below ``min_clearance`` and smaller than the current gap is refused: first
+   one arm's motion is zeroed (the one whose zeroing keeps the gap), else both. Moves that
+   increase the gap are always allowed, so arms that are too close can separate.
+
+The prediction is first order (the arm follows its target within one period; a real arm's
+links move differently, the elbow most), so set ``min_clearance`` with margin. Everything here
+is NumPy; the limits default from the env settings saved in the policy export.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Optional
+
+import numpy as np
+
+from mjx_envs.observation import arm_clearance
+
+NUM_ARMS = 2
+# how far each link point (shoulder, elbow, wrist 1, flange, tool centre) moves with the target
+LINK_FOLLOW = np.array([0.0, 0.5, 1.0, 1.0, 1.0], np.float32)
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    workspace_low: np.ndarray  # [2, 3] world m
+    workspace_high: np.ndarray  # [2, 3]
+    max_step: float  # largest target displacement of one arm per control period, m
+    min_clearance: float  # smallest allowed capsule gap between the arms, m
+    deadline_s: float  # latest acceptable answer of the policy service, s
+    finger_low: float = 0.0  # finger opening range, m
+    finger_high: float = 0.04
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, Any], max_speed: Optional[float] = None,
+                 min_clearance: Optional[float] = None, deadline_s: Optional[float] = None,
+                 margin: float = 0.0) -> "SafetyLimits":
+        """Limits from a policy export's env settings (``NumpyPolicy.env``).
+
+        max_speed: m/s (default: what the policy can command, ``sqrt(3) * max_delta / dt``);
+        min_clearance: m (default: the env's ``arm_clearance``); deadline_s: default one
+        control period; margin: shrinks the workspace boxes on every side, m.
+        """
+        dt = float(env["dt"])
+        if max_speed is None:
+            max_step = math.sqrt(3.0) * float(env["max_delta"])
+        else:
+            max_step = float(max_speed) * dt
+        low = np.asarray(env["workspace_low"], np.float32) + np.float32(margin)
+        high = np.asarray(env["workspace_high"], np.float32) - np.float32(margin)
+        if np.any(low > high):
+            raise ValueError(f"workspace margin {margin} m leaves an empty box")
+        return cls(workspace_low=low, workspace_high=high, max_step=max_step,
+                   min_clearance=float(env.get("arm_clearance", 0.01) if min_clearance is None
+                                       else min_clearance),
+                   deadline_s=dt if deadline_s is None else float(deadline_s),
+                   finger_low=0.0, finger_high=float(env.get("finger_stroke", 0.04)))
+
+
+@dataclass
+class SafetyDecision:
+    target: np.ndarray  # [2, 3] Cartesian targets to send
+    stopped: bool  # the answer was refused and both arms hold
+    reasons: list = field(default_factory=list)  # what the layer changed, e.g. ["speed", "workspace"]
+    clearance_before: float = float("nan")
+    clearance_after: float = float("nan")  # predicted
+
+
+class SafetyFilter:
+    def __init__(self, limits: SafetyLimits):
+        self.limits = limits
+        self.counts: dict[str, int] = {}
+
+    def _count(self, reasons):
+        for r in reasons:
+            self.counts[r] = self.counts.get(r, 0) + 1
+
+    # -- pieces (tested one by one) -----------------------------------------------------------
+
+    @staticmethod
+    def validate_action(action, size: int = 8) -> Optional[np.ndarray]:
+        """The action as float32 [size], or None when it is malformed (shape, type, NaN/inf)."""
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            return None
+        if a.shape != (size,) or not np.all(np.isfinite(a)):
+            return None
+        return a.astype(np.float32)
+
+    def cap_speed(self, current, proposed) -> tuple[np.ndarray, bool]:
+        d = np.asarray(proposed, np.float32) - np.asarray(current, np.float32)
+        n = np.linalg.norm(d, axis=-1, keepdims=True)
+        over = n > self.limits.max_step * (1.0 + 1e-6)  # float32 rounding is not a violation
+        scale = np.where(over, self.limits.max_step / np.maximum(n, 1e-12), 1.0)
+        capped = bool(np.any(over))
+        return (np.asarray(current, np.float32) + d * scale).astype(np.float32), capped
+
+    def clamp_workspace(self, target) -> tuple[np.ndarray, bool]:
+        t = np.asarray(target, np.float32)
+        c = np.clip(t, self.limits.workspace_low, self.limits.workspace_high)
+        return c.astype(np.float32), bool(np.any(c != t))
+
+    @staticmethod
+    def predict_link_points(link_points, delta) -> np.ndarray:
+        """Link points [2, 5, 3] after the targets move by ``delta`` [2, 3] (first order)."""
+        lp = np.asarray(link_points, np.float32)
+        return lp + LINK_FOLLOW[None, :, None] * np.asarray(delta, np.float32)[:, None, :]
+
+    def clearance(self, link_points) -> float:
+        return float(arm_clearance(np, np.asarray(link_points, np.float32)))
+
+    def limit_clearance(self, current, target, link_points):
+        """(target, refused, gap now, predicted gap) after the arm-clearance rule."""
+        cur = np.asarray(current, np.float32)
+        delta = np.asarray(target, np.float32) - cur
+        now = self.clearance(link_points)
+        after = self.clearance(self.predict_link_points(link_points, delta))
+        lim = self.limits.min_clearance
+        if after >= lim or after >= now:
+            return np.asarray(target, np.float32), False, now, after
+        # try keeping one arm's motion (the larger motion first)
+        order = np.argsort(-np.linalg.norm(delta, axis=-1))
+        for keep in order:
+            d = np.zeros_like(delta)
+            d[keep] = delta[keep]
+            gap = self.clearance(self.predict_link_points(link_points, d))
+            if gap >= lim or gap >= now:
+                return (cur + d).astype(np.float32), True, now, gap
+        return cur.copy(), True, now, now
+
+    # -- the whole layer ----------------------------------------------------------------------
+
+    def hold(self, current_target, measured_tool=None, reason: str = "stop") -> SafetyDecision:
+        """Stop: hold the measured tool positions (or the current targets), clamped to the box."""
+        t = current_target if measured_tool is None else measured_tool
+        t, _ = self.clamp_workspace(t)
+        self._count([reason])
+        return SafetyDecision(target=t, stopped=True, reasons=[reason])
+
+    def filter(self, current_target, proposed_target, link_points) -> SafetyDecision:
+        """Safe targets [2, 3] for a proposed move from ``current_target`` (both [2, 3])."""
+        cur = np.asarray(current_target, np.float32).reshape(NUM_ARMS, 3)
+        prop = np.asarray(proposed_target, np.float32).reshape(NUM_ARMS, 3)
+        if not np.all(np.isfinite(prop)):
+            return self.hold(cur, reason="malformed")
+        reasons = []
+        t, capped = self.cap_speed(cur, prop)
+        if capped:
+            reasons.append("speed")
+        t, clamped = self.clamp_workspace(t)
+        if clamped:
+            reasons.append("workspace")
+        t, refused, before, after = self.limit_clearance(cur, t, link_points)
+        if refused:
+            reasons.append("clearance")
+        self._count(reasons)
+        return SafetyDecision(target=t, stopped=False, reasons=reasons, clearance_before=before,
+                              clearance_after=after)
+
+    def finger_opening(self, opening) -> np.ndarray:
+        return np.clip(np.asarray(opening, np.float32), self.limits.finger_low,
+                       self.limits.finger_high)
