@@ -211,7 +211,8 @@ def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, 
             stops += 1
         else:
             proposed, ctrl = env.command_targets(action)
-            decision = safety.filter(env.target, proposed, res.link_points)
+            grip = res.observation[:, grip_slice[0]:grip_slice[1]]
+            decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
         res = env.step_targets(decision.target, ctrl)
         clear_min = min(clear_min, res.arm_clearance)
     return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),

@@ -8,12 +8,13 @@ Applied every control period by the robot client, in this order:
    ``max_step`` metres (Euclidean);
 3. **workspace clamp**: targets are clipped to each arm's box;
 4. **arm clearance**: the link points after the move are predicted by moving each arm's
-   distal points (wrist 1, flange, tool centre) with its target displacement and the elbow with
-   half of it (shoulders fixed), and the capsule gap between the arms is computed with
-   ``mjx_envs.observation.arm_clearance`` (the trainer's own arm-contact check). A move whose
-   predicted gap is below ``min_clearance`` and smaller than the current gap is refused: first
-   one arm's motion is zeroed (the one whose zeroing keeps the gap), else both. Moves that
-   increase the gap are always allowed, so arms that are too close can separate.
+   distal points (wrist 1, flange, tool centre) by its motion this period (new target minus
+   measured tool position) and the elbow by half of it (shoulders fixed), and the capsule gap
+   between the arms is computed with ``mjx_envs.observation.arm_clearance`` (the trainer's own
+   arm-contact check). A move whose predicted gap is below ``min_clearance`` and smaller than
+   the current gap is refused: first one arm is stopped where it is (the one that moves less),
+   else both. Moves that increase the gap are always allowed, so arms that are too close can
+   separate.
 
 The prediction is first order (the arm follows its target within one period; a real arm's
 links move differently, the elbow most), so set ``min_clearance`` with margin. Everything here
@@ -124,24 +125,33 @@ class SafetyFilter:
     def clearance(self, link_points) -> float:
         return float(arm_clearance(np, np.asarray(link_points, np.float32)))
 
-    def limit_clearance(self, current, target, link_points):
-        """(target, refused, gap now, predicted gap) after the arm-clearance rule."""
+    def limit_clearance(self, current, target, link_points, tool=None):
+        """(target, refused, gap now, predicted gap) after the arm-clearance rule.
+
+        The arm is assumed to travel from its measured tool position ``tool`` [2, 3] (default:
+        the current targets) to the new target within the period; a refused arm is stopped
+        where it is (target = its measured tool position).
+        """
         cur = np.asarray(current, np.float32)
-        delta = np.asarray(target, np.float32) - cur
+        target = np.asarray(target, np.float32)
+        tool = cur if tool is None else np.asarray(tool, np.float32).reshape(NUM_ARMS, 3)
+        motion = target - tool
         now = self.clearance(link_points)
-        after = self.clearance(self.predict_link_points(link_points, delta))
+        after = self.clearance(self.predict_link_points(link_points, motion))
         lim = self.limits.min_clearance
         if after >= lim or after >= now:
-            return np.asarray(target, np.float32), False, now, after
-        # try keeping one arm's motion (the larger motion first)
-        order = np.argsort(-np.linalg.norm(delta, axis=-1))
-        for keep in order:
-            d = np.zeros_like(delta)
-            d[keep] = delta[keep]
-            gap = self.clearance(self.predict_link_points(link_points, d))
+            return target, False, now, after
+        # try stopping one arm (the one that moves less first), else both
+        order = np.argsort(np.linalg.norm(motion, axis=-1))
+        for stop in order:
+            m = motion.copy()
+            m[stop] = 0.0
+            gap = self.clearance(self.predict_link_points(link_points, m))
             if gap >= lim or gap >= now:
-                return (cur + d).astype(np.float32), True, now, gap
-        return cur.copy(), True, now, now
+                t = target.copy()
+                t[stop] = tool[stop]
+                return t, True, now, gap
+        return tool.copy(), True, now, now
 
     # -- the whole layer ----------------------------------------------------------------------
 
@@ -152,8 +162,9 @@ class SafetyFilter:
         self._count([reason])
         return SafetyDecision(target=t, stopped=True, reasons=[reason])
 
-    def filter(self, current_target, proposed_target, link_points) -> SafetyDecision:
-        """Safe targets [2, 3] for a proposed move from ``current_target`` (both [2, 3])."""
+    def filter(self, current_target, proposed_target, link_points, tool=None) -> SafetyDecision:
+        """Safe targets [2, 3] for a proposed move from ``current_target`` (both [2, 3]);
+        ``link_points`` [2, 5, 3] and ``tool`` [2, 3] are the measured link and tool positions."""
         cur = np.asarray(current_target, np.float32).reshape(NUM_ARMS, 3)
         prop = np.asarray(proposed_target, np.float32).reshape(NUM_ARMS, 3)
         if not np.all(np.isfinite(prop)):
@@ -165,7 +176,7 @@ class SafetyFilter:
         t, clamped = self.clamp_workspace(t)
         if clamped:
             reasons.append("workspace")
-        t, refused, before, after = self.limit_clearance(cur, t, link_points)
+        t, refused, before, after = self.limit_clearance(cur, t, link_points, tool)
         if refused:
             reasons.append("clearance")
         self._count(reasons)

@@ -1,0 +1,268 @@
+"""Policy service: happy path, every malformed-input class, liveness after them, concurrency."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import threading
+import time
+
+import jax
+import numpy as np
+import pytest
+
+import mjx_envs
+from daddpg_jax.config import TrainConfig
+from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy
+from daddpg_jax.export import export_state
+from daddpg_jax.server import PolicyClient, PolicyServer, json_depth_exceeds
+from daddpg_jax.train import make_train_fns
+from mjx_envs import observation as obs_lib
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory):
+    env = mjx_envs.make("reach", physics="c")
+    cfg = TrainConfig(hidden=(32, 32), num_envs=2, n_cycles=1, n_batches=1, batch_size=8,
+                      buffer_size=200, n_test_episodes=2)
+    fns = make_train_fns(env, cfg)
+    path = export_state(fns.init(jax.random.PRNGKey(0)), cfg, env,
+                        str(tmp_path_factory.mktemp("srv") / "p.npz"))
+    return NumpyPolicy.load(path)
+
+
+@pytest.fixture(scope="module")
+def server(policy):
+    srv = PolicyServer(policy, port=0).start()
+    yield srv
+    srv.stop()
+
+
+def _inputs(seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.normal(0, 0.3, (2, 25)).astype(np.float32),
+            rng.uniform(0.1, 0.5, (2, 3)).astype(np.float32))
+
+
+def _request(server, method, path, body=None, headers=None):
+    host, port = server.address
+    conn = http.client.HTTPConnection(host, port, timeout=10)
+    try:
+        if isinstance(body, (dict, list)):
+            body = json.dumps(body)
+        hdrs = {"Content-Type": "application/json"} if body is not None else {}
+        hdrs.update(headers or {})
+        conn.request(method, path, body=body, headers=hdrs)
+        r = conn.getresponse()
+        return r.status, json.loads(r.read())
+    finally:
+        conn.close()
+
+
+def _raw(server, data: bytes) -> bytes:
+    """Sends raw bytes and returns the whole answer (the server closes after an error)."""
+    with socket.create_connection(server.address, timeout=10) as s:
+        s.sendall(data)
+        chunks = []
+        while True:
+            try:
+                c = s.recv(65536)
+            except ConnectionResetError:
+                break
+            if not c:
+                break
+            chunks.append(c)
+            if b"\r\n\r\n" in b"".join(chunks):
+                head, _, rest = b"".join(chunks).partition(b"\r\n\r\n")
+                n = [int(line.split(b":")[1]) for line in head.split(b"\r\n")
+                     if line.lower().startswith(b"content-length")]
+                if n and len(rest) >= n[0]:
+                    break
+        return b"".join(chunks)
+
+
+def _assert_alive(server, policy):
+    status, out = _request(server, "GET", "/health")
+    assert status == 200 and out["status"] == "ok"
+    o, g = _inputs(5)
+    status, out = _request(server, "POST", "/act", {"observation": o.tolist(),
+                                                    "desired_goal": g.tolist()})
+    assert status == 200
+    np.testing.assert_allclose(out["action"], policy.act(o, g), atol=1e-7)
+
+
+def test_act_health_info(server, policy):
+    o, g = _inputs()
+    status, out = _request(server, "POST", "/act", {"observation": o.tolist(),
+                                                    "desired_goal": g.tolist(), "id": 17})
+    assert status == 200
+    expected = policy.act(o, g)
+    assert len(out["action"]) == 8 and out["id"] == 17
+    np.testing.assert_array_equal(np.asarray(out["action"], np.float32), expected)
+    np.testing.assert_array_equal(np.asarray(out["per_arm"], np.float32), expected.reshape(2, 4))
+    assert out["latency_ms"] >= 0.0
+    status, info = _request(server, "GET", "/info")
+    assert status == 200
+    assert info["task"] == "reach" and info["algo"] == "daddpg"
+    assert info["format_version"] == FORMAT_VERSION
+    assert info["obs_layout"] == {k: list(v) for k, v in obs_lib.obs_layout().items()}
+    assert info["env"]["dt"] == pytest.approx(0.04)
+    status, health = _request(server, "GET", "/health")
+    assert status == 200 and health["status"] == "ok" and health["requests"] >= 2
+    # integers are numbers too
+    status, out = _request(server, "POST", "/act", {"observation": [[0] * 25] * 2,
+                                                    "desired_goal": [[0, 0, 1]] * 2})
+    assert status == 200
+
+
+def test_client_keeps_connection_and_matches(server, policy):
+    c = PolicyClient(server.url, timeout=5)
+    for k in range(20):
+        o, g = _inputs(k)
+        a, info = c.act(o, g)
+        assert "error" not in info
+        np.testing.assert_array_equal(np.asarray(a, np.float32), policy.act(o, g))
+    sock = c._conn.sock
+    c.act(*_inputs(99))
+    assert c._conn.sock is sock  # one keep-alive connection
+    assert c.info()["task"] == "reach"
+    c.close()
+
+
+GOOD_O, GOOD_G = [[0.1] * 25] * 2, [[0.2, 0.0, 0.5]] * 2
+
+MALFORMED_JSON = [
+    ("bad json", b"{not json"),
+    ("truncated", b'{"observation": [[1, 2'),
+    ("not an object", b"[1, 2, 3]"),
+    ("a string", b'"hello"'),
+    ("empty body", b""),
+    ("bad utf-8", b'{"observation": "\xff\xfe"}'),
+    ("NaN token", json.dumps({"observation": GOOD_O, "desired_goal": GOOD_G}).replace(
+        "0.1", "NaN", 1).encode()),
+    ("Infinity token", json.dumps({"observation": GOOD_O, "desired_goal": GOOD_G}).replace(
+        "0.2", "-Infinity", 1).encode()),
+    ("huge number", json.dumps({"observation": GOOD_O, "desired_goal": GOOD_G}).replace(
+        "0.2", "1e999", 1).encode()),
+    ("deep nesting", b"[" * 5000 + b"]" * 5000),
+    ("deep nesting in object", b'{"observation": ' + b"[" * 30 + b"]" * 30 + b"}"),
+]
+
+MALFORMED_FIELDS = [
+    ("missing observation", {"desired_goal": GOOD_G}),
+    ("missing goal", {"observation": GOOD_O}),
+    ("one arm", {"observation": GOOD_O[:1], "desired_goal": GOOD_G}),
+    ("short row", {"observation": [[0.1] * 24] * 2, "desired_goal": GOOD_G}),
+    ("long goal", {"observation": GOOD_O, "desired_goal": [[0.1] * 4] * 2}),
+    ("flat", {"observation": [0.1] * 50, "desired_goal": GOOD_G}),
+    ("string entry", {"observation": [["x"] * 25] * 2, "desired_goal": GOOD_G}),
+    ("null entry", {"observation": GOOD_O, "desired_goal": [[None, 0, 0]] * 2}),
+    ("bool entry", {"observation": GOOD_O, "desired_goal": [[True, 0, 0]] * 2}),
+    ("nested entry", {"observation": GOOD_O, "desired_goal": [[[0.1], 0, 0]] * 2}),
+    ("object field", {"observation": {"a": 1}, "desired_goal": GOOD_G}),
+    ("bad id", {"observation": GOOD_O, "desired_goal": GOOD_G, "id": [1]}),
+    ("long id", {"observation": GOOD_O, "desired_goal": GOOD_G, "id": "x" * 65}),
+]
+
+
+@pytest.mark.parametrize("name,body", MALFORMED_JSON, ids=[m[0] for m in MALFORMED_JSON])
+def test_malformed_json_gets_400(server, policy, name, body):
+    status, out = _request(server, "POST", "/act", body)
+    assert status == 400, (name, out)
+    assert out["status"] == 400 and isinstance(out["error"], str) and out["error"]
+    _assert_alive(server, policy)
+
+
+@pytest.mark.parametrize("name,payload", MALFORMED_FIELDS, ids=[m[0] for m in MALFORMED_FIELDS])
+def test_malformed_fields_get_400(server, policy, name, payload):
+    status, out = _request(server, "POST", "/act", payload)
+    assert status == 400, (name, out)
+    assert out["error"]
+    _assert_alive(server, policy)
+
+
+def test_error_messages_say_what_is_wrong(server):
+    _, out = _request(server, "POST", "/act", {"observation": GOOD_O})
+    assert "desired_goal" in out["error"]
+    _, out = _request(server, "POST", "/act", {"observation": [[0.1] * 24] * 2, "desired_goal": GOOD_G})
+    assert "observation" in out["error"] and "25" in out["error"]
+
+
+def test_http_level_errors(server, policy):
+    status, out = _request(server, "POST", "/act", b"x" * (64 * 1024 + 1))
+    assert status == 413 and "exceeds" in out["error"]
+    status, _ = _request(server, "POST", "/act", json.dumps({"observation": GOOD_O,
+                                                             "desired_goal": GOOD_G}),
+                         headers={"Content-Type": "text/plain"})
+    assert status == 415
+    assert _request(server, "GET", "/nowhere")[0] == 404
+    assert _request(server, "POST", "/nowhere", {"a": 1})[0] == 404
+    assert _request(server, "GET", "/act")[0] == 405
+    assert _request(server, "POST", "/health", {"a": 1})[0] == 405
+    # no Content-Length
+    ans = _raw(server, b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\r\n")
+    assert ans.startswith(b"HTTP/1.1 411")
+    # a huge declared length is refused before reading anything
+    ans = _raw(server, b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: 999999999\r\n\r\n{")
+    assert ans.startswith(b"HTTP/1.1 413")
+    ans = _raw(server, b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: -5\r\n\r\n")
+    assert ans.startswith(b"HTTP/1.1 400")
+    ans = _raw(server, b"garbage\r\n\r\n")
+    assert b'"status":400' in ans
+    ans = _raw(server, b"DELETE /act HTTP/1.1\r\nHost: x\r\n\r\n")
+    assert ans.startswith(b"HTTP/1.1 501") and b'"error"' in ans
+    _assert_alive(server, policy)
+
+
+def test_stalled_client_does_not_block_others(server, policy):
+    s = socket.create_connection(server.address, timeout=10)
+    try:
+        s.sendall(b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: 500\r\n\r\n{\"obs")
+        t0 = time.perf_counter()
+        _assert_alive(server, policy)
+        assert time.perf_counter() - t0 < 5.0
+    finally:
+        s.close()
+
+
+def test_concurrent_clients(server, policy):
+    n_threads, n_req = 8, 25
+    failures = []
+
+    def worker(i):
+        c = PolicyClient(server.url, timeout=10)
+        try:
+            for k in range(n_req):
+                o, g = _inputs(1000 * i + k)
+                a, info = c.act(o, g)
+                if a is None or not np.array_equal(np.asarray(a, np.float32), policy.act(o, g)):
+                    failures.append((i, k, info))
+        finally:
+            c.close()
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert not failures, failures[:3]
+    _assert_alive(server, policy)
+
+
+def test_json_depth_scan():
+    assert not json_depth_exceeds(b'{"a": [[1, 2], [3]]}', 3)
+    assert json_depth_exceeds(b'{"a": [[[1]]]}', 3)
+    assert not json_depth_exceeds(b'{"a": "[[[[[[[[[["}', 3)  # brackets inside strings
+    assert not json_depth_exceeds(b'{"a": "\\"[[[[[["}', 3)
+
+
+def test_client_reports_unreachable_service():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    c = PolicyClient(f"http://127.0.0.1:{port}", timeout=0.5)
+    a, info = c.act(*_inputs())
+    assert a is None and "error" in info
+    with pytest.raises(ValueError):
+        PolicyClient("ftp://127.0.0.1:1")
