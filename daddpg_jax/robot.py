@@ -205,8 +205,7 @@ def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, 
         if action is None or rtt > deadline:
             why = info.get("error") or ("late" if action is not None else "malformed")
             errors.append(why)
-            grip = res.observation[:, grip_slice[0]:grip_slice[1]]
-            decision = safety.hold(env.target, measured_tool=grip,
+            decision = safety.hold(env.target,
                                    reason="late" if rtt > deadline and action is not None else "stop")
             stops += 1
         else:

@@ -3,7 +3,7 @@
 Applied every control period by the robot client, in this order:
 
 1. **stop**: no answer, a malformed answer (wrong size, NaN/inf) or one later than the deadline
-   makes both arms hold (targets set to the measured tool positions, fingers unchanged);
+   makes both arms hold (targets kept where they are, fingers unchanged);
 2. **speed cap**: each arm's target displacement this period is scaled down to at most
    ``max_step`` metres (Euclidean);
 3. **workspace clamp**: targets are clipped to each arm's box;
@@ -12,8 +12,8 @@ Applied every control period by the robot client, in this order:
    measured tool position) and the elbow by half of it (shoulders fixed), and the capsule gap
    between the arms is computed with ``mjx_envs.observation.arm_clearance`` (the trainer's own
    arm-contact check). A move whose predicted gap is below ``min_clearance`` and smaller than
-   the current gap is refused: first one arm is stopped where it is (the one that moves less),
-   else both. Moves that increase the gap are always allowed, so arms that are too close can
+   the current gap is refused: first one arm is stopped (the one that moves less), else both;
+   a stopped arm keeps its previous target if that is safe, else its measured position. Moves that increase the gap are always allowed, so arms that are too close can
    separate.
 
 The prediction is first order (the arm follows its target within one period; a real arm's
@@ -141,22 +141,25 @@ class SafetyFilter:
         lim = self.limits.min_clearance
         if after >= lim or after >= now:
             return target, False, now, after
-        # try stopping one arm (the one that moves less first), else both
-        order = np.argsort(np.linalg.norm(motion, axis=-1))
-        for stop in order:
-            m = motion.copy()
-            m[stop] = 0.0
-            gap = self.clearance(self.predict_link_points(link_points, m))
-            if gap >= lim or gap >= now:
+        # try stopping one arm (the one that moves less first), else both. A stopped arm keeps
+        # its previous target when that is safe (holding the measured position instead would
+        # let a real or simulated arm sag under gravity step after step), else its measured one.
+        order = [int(i) for i in np.argsort(np.linalg.norm(motion, axis=-1))]
+        for stopped in ([order[0]], [order[1]], order):
+            for hold in (cur, tool):
                 t = target.copy()
-                t[stop] = tool[stop]
-                return t, True, now, gap
+                t[stopped] = hold[stopped]
+                gap = self.clearance(self.predict_link_points(link_points, t - tool))
+                if gap >= lim or gap >= now:
+                    return t, True, now, gap
         return tool.copy(), True, now, now
 
     # -- the whole layer ----------------------------------------------------------------------
 
     def hold(self, current_target, measured_tool=None, reason: str = "stop") -> SafetyDecision:
-        """Stop: hold the measured tool positions (or the current targets), clamped to the box."""
+        """Stop: keep the current targets (the arms settle on the last commanded pose, at most
+        one step away), or hold ``measured_tool`` positions when given (e.g. after a protective
+        stop on a real robot); clamped to the box."""
         t = current_target if measured_tool is None else measured_tool
         t, _ = self.clamp_workspace(t)
         self._count([reason])
