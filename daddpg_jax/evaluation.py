@@ -1,0 +1,251 @@
+"""Evaluate a trained run from its checkpoint: success rate with a confidence interval, arm
+contact, final goal distances, and an optional video.
+
+    from daddpg_jax import evaluation
+    policy = evaluation.load_policy("runs/reach_s0")          # latest checkpoint
+    result, traj = evaluation.evaluate(policy, episodes=200, seed=0)
+    evaluation.write_video(policy, traj, "reach.mp4", n_episodes=3)
+
+The env is rebuilt from the run's ``config.json`` (task, physics, env overrides), the agents and
+normalizers are restored from ``RUN_DIR/checkpoints/{step}`` into a template made by
+``make_train_fns(...).init()`` (with a tiny replay buffer: the buffer is not needed to act), and
+N episodes run at once with deterministic actors (one vmapped, jitted rollout). Episode i's
+reset key is ``split(split(PRNGKey(seed))[0], N)[i]``, the same derivation as the trainer's
+per-epoch evaluation, so ``seed = eval_seed`` (the default) and ``N = n_test_episodes``
+reproduce the ``test_success_rate`` that ``metrics.csv`` logged for that epoch.
+
+Per episode: success = every arm within the threshold at the last step (as in training),
+arm contact = the arms' link capsules came within ``arm_clearance`` at any step, final goal
+distance per arm at the last step.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+Z95 = 1.959963984540054  # standard normal quantile 0.975
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion (default 95%).
+
+    centre = (p + z²/2n) / (1 + z²/n),  half width = z / (1 + z²/n) · sqrt(p(1-p)/n + z²/4n²).
+    Unlike the normal approximation it stays inside [0, 1] and is not empty at p = 0 or 1.
+    """
+    if n <= 0:
+        return (math.nan, math.nan)
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes must be in [0, {n}], got {successes}")
+    p = successes / n
+    z2 = z * z
+    denom = 1.0 + z2 / n
+    centre = (p + z2 / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+class NoCheckpointError(FileNotFoundError):
+    """RUN_DIR has no config.json or no (such) checkpoint."""
+
+
+@dataclass
+class Policy:
+    run_dir: str
+    step: int
+    cfg: Any           # TrainConfig (buffer shrunk)
+    payload: dict      # config.json
+    env: Any
+    fns: Any           # TrainFns
+    state: Any         # restored TrainState
+
+
+def load_policy(run_dir: str, step: Optional[int] = None, physics: Optional[str] = None) -> Policy:
+    """Rebuilds the run's env and restores checkpoint ``step`` (default: latest)."""
+    from daddpg_jax import checkpoint as ckpt
+    from daddpg_jax.runner import make_env
+    from daddpg_jax.train import make_train_fns
+
+    if not os.path.exists(os.path.join(run_dir, "config.json")):
+        raise NoCheckpointError(f"{run_dir}: no config.json; is this a run directory "
+                                "(written by experiments/run.py)?")
+    steps = ckpt.all_steps(run_dir)
+    if not steps:
+        raise NoCheckpointError(f"{run_dir}: no checkpoint under {ckpt.checkpoint_dir(run_dir)} "
+                                "(a run writes one at the end of each epoch)")
+    if step is not None and int(step) not in steps:
+        raise NoCheckpointError(f"{run_dir}: no checkpoint {step}; available: {steps}")
+    cfg, payload = ckpt.load_config(run_dir)
+    if physics is not None:
+        cfg = cfg.replace(physics=physics)
+    # acting needs no replay buffer: a template with the smallest one (num_envs episodes)
+    cfg = cfg.replace(buffer_size=1)
+    env = make_env(cfg, payload.get("env_overrides") or {})
+    fns = make_train_fns(env, cfg)
+    state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False)
+    return Policy(run_dir, int(step), cfg, payload, env, fns, state)
+
+
+_ROLLOUTS: dict = {}
+
+
+def _rollout_fn(policy: Policy, n: int):
+    import jax
+
+    key_ = (id(policy.env), id(policy.fns), n)
+    if key_ in _ROLLOUTS:
+        return _ROLLOUTS[key_]
+    env, act, T = policy.env, policy.fns.act, policy.env.episode_length
+
+    def run(state, key):
+        k_reset, _ = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n))
+
+        def step(s, _):
+            a = act(state, s.obs["observation"], s.obs["desired_goal"])
+            s2 = jax.vmap(env.step)(s, a)
+            return s2, dict(success=s2.metrics["success"], arm_contact=s2.metrics["arm_contact"],
+                            ag=s2.obs["achieved_goal"], qpos=env.backend.qpos(s2.data),
+                            mocap=env.backend.mocap_pos(s2.data)[:, :2])
+
+        _, tr = jax.lax.scan(step, s0, None, length=T)
+        first = dict(qpos=env.backend.qpos(s0.data), mocap=env.backend.mocap_pos(s0.data)[:, :2])
+        return tr, first, s0.obs["desired_goal"]
+
+    fn = jax.jit(run)
+    _ROLLOUTS[key_] = fn
+    return fn
+
+
+def _metrics_row(run_dir: str, epoch: int) -> Optional[dict]:
+    path = os.path.join(run_dir, "metrics.csv")
+    if not os.path.exists(path):
+        return None
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            if int(r["epoch"]) == int(epoch):
+                return r
+    return None
+
+
+def evaluate(policy: Policy, episodes: int = 100, seed: Optional[int] = None):
+    """Runs ``episodes`` deterministic episodes at once. Returns (summary dict, trajectory)
+    where the trajectory holds NumPy arrays for rendering: ``qpos`` [N, T+1, nq],
+    ``mocap`` [N, T+1, 2, 3], ``goal`` [N, 2, 3], ``success`` [N], ``arm_contact`` [N]."""
+    import jax
+
+    if episodes < 1:
+        raise ValueError("episodes must be >= 1")
+    seed = int(policy.cfg.eval_seed if seed is None else seed)
+    fn = _rollout_fn(policy, int(episodes))
+    t0 = time.perf_counter()
+    tr, first, goal = jax.device_get(fn(policy.state, jax.random.PRNGKey(seed)))
+    elapsed = time.perf_counter() - t0
+    success = np.asarray(tr["success"][-1]) > 0.5                       # [N]
+    contact = np.max(np.asarray(tr["arm_contact"]), axis=0) > 0.5        # [N]
+    dist = np.linalg.norm(np.asarray(tr["ag"][-1]) - np.asarray(goal), axis=-1)  # [N, 2]
+    n, k, c = int(episodes), int(success.sum()), int(contact.sum())
+    row = _metrics_row(policy.run_dir, policy.step)
+    cfg = policy.cfg
+    summary = {
+        "run_dir": os.path.abspath(policy.run_dir),
+        "checkpoint": policy.step,
+        "env_steps": int(row["env_steps"]) if row else None,
+        "task": cfg.task, "algo": cfg.algo, "physics": getattr(policy.env, "physics", cfg.physics),
+        "episodes": n, "seed": seed,
+        "success_rate": k / n, "successes": k, "success_ci95": list(wilson_interval(k, n)),
+        "arm_contact_rate": c / n, "arm_contact_episodes": c,
+        "arm_contact_ci95": list(wilson_interval(c, n)),
+        "final_distance_mean": {"left": float(dist[:, 0].mean()), "right": float(dist[:, 1].mean())},
+        "final_distance_median": {"left": float(np.median(dist[:, 0])),
+                                  "right": float(np.median(dist[:, 1]))},
+        "distance_threshold": float(policy.env.config.distance_threshold),
+        "eval_seconds": round(elapsed, 3),
+    }
+    qpos = np.concatenate([np.asarray(first["qpos"])[None], np.asarray(tr["qpos"])], 0)
+    mocap = np.concatenate([np.asarray(first["mocap"])[None], np.asarray(tr["mocap"])], 0)
+    traj = dict(qpos=np.swapaxes(qpos, 0, 1), mocap=np.swapaxes(mocap, 0, 1),
+                goal=np.asarray(goal), success=success, arm_contact=contact, final_distance=dist)
+    return summary, traj
+
+
+def format_summary(s: dict) -> str:
+    lo, hi = s["success_ci95"]
+    clo, chi = s["arm_contact_ci95"]
+    steps = f", {s['env_steps']:,} env steps" if s.get("env_steps") is not None else ""
+    fd, fm = s["final_distance_mean"], s["final_distance_median"]
+    return "\n".join([
+        f"run {s['run_dir']}",
+        f"checkpoint {s['checkpoint']}{steps}; task {s['task']}, algo {s['algo']}, "
+        f"physics {s['physics']}",
+        f"{s['episodes']} episodes, seed {s['seed']}, deterministic actors",
+        f"success rate      {s['success_rate']:.3f}  ({s['successes']}/{s['episodes']}; "
+        f"95% Wilson interval {lo:.3f}-{hi:.3f})",
+        f"arm-contact rate  {s['arm_contact_rate']:.3f}  ({s['arm_contact_episodes']}/"
+        f"{s['episodes']}; 95% Wilson interval {clo:.3f}-{chi:.3f})",
+        f"final goal distance, m (threshold {s['distance_threshold']:g}): "
+        f"left mean {fd['left']:.4f} median {fm['left']:.4f}; "
+        f"right mean {fd['right']:.4f} median {fm['right']:.4f}",
+    ])
+
+
+class RenderUnavailable(RuntimeError):
+    """No OpenGL context (set MUJOCO_GL=egl and install libegl1 libegl-mesa0 libgl1-mesa-dri)."""
+
+
+def _border(frame: np.ndarray, ok: bool, width: int = 6) -> np.ndarray:
+    f = frame.copy()
+    color = np.array([40, 180, 60] if ok else [200, 50, 40], np.uint8)
+    f[:width], f[-width:], f[:, :width], f[:, -width:] = color, color, color, color
+    return f
+
+
+def render_frames(policy: Policy, traj: dict, n_episodes: int = 3, width: int = 480,
+                  height: int = 360, hold: int = 12) -> list:
+    """RGB frames of the first ``n_episodes`` episodes one after another; each episode ends
+    with ``hold`` copies of its last frame framed green (success) or red (failure)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    try:
+        from mjx_envs.render import Renderer
+
+        r = Renderer(policy.env, width=width, height=height)
+    except Exception as e:  # noqa: BLE001 (no EGL, no GL context, ...)
+        raise RenderUnavailable(
+            f"rendering failed ({type(e).__name__}: {e}); set MUJOCO_GL=egl and install "
+            "libegl1 libegl-mesa0 libgl1-mesa-dri") from e
+    frames = []
+    try:
+        for e in range(min(n_episodes, len(traj["goal"]))):
+            for t in range(traj["qpos"].shape[1]):
+                frames.append(r.frame(traj["qpos"][e, t], traj["goal"][e], traj["mocap"][e, t]))
+            frames += [_border(frames[-1], bool(traj["success"][e]))] * hold
+    finally:
+        r.close()
+    return frames
+
+
+def write_video(policy: Policy, traj: dict, path: str, n_episodes: int = 3, width: int = 480,
+                height: int = 360) -> str:
+    """Writes the frames of ``render_frames`` as an mp4 (imageio + imageio-ffmpeg). Without an
+    mp4 writer it writes a GIF next to ``path`` instead. Returns the path written."""
+    import imageio.v2 as imageio
+
+    frames = render_frames(policy, traj, n_episodes, width, height)
+    fps = int(round(1.0 / policy.env.dt))
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    if path.lower().endswith(".gif"):
+        imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
+        return path
+    try:
+        imageio.mimsave(path, frames, fps=fps, macro_block_size=8)
+        return path
+    except Exception:  # noqa: BLE001 (no ffmpeg backend)
+        alt = os.path.splitext(path)[0] + ".gif"
+        imageio.mimsave(alt, frames, duration=1000.0 / fps, loop=0)
+        return alt
