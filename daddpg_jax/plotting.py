@@ -1,4 +1,10 @@
-"""Learning-curve plots (PNG) from metrics rows (dicts as read from metrics.csv)."""
+"""Learning-curve plots (PNG) from metrics rows (dicts as read from metrics.csv).
+
+``plot_learning_curve``: one run (written by the runner after every epoch).
+``plot_runs``: several runs grouped by label (e.g. seeds of one configuration), mean line and a
+min-max (or +-std) band per group, in three panels: test success vs env steps, test success vs
+wall clock, arm-contact rate vs env steps (``experiments/plot.py``).
+"""
 
 from __future__ import annotations
 
@@ -33,6 +39,114 @@ def plot_learning_curve(rows: Sequence[dict], out: str, title: str = "") -> str:
     ax.legend(loc="lower right")
     if title:
         ax.set_title(title)
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+# -- several runs: mean and band per group (seeds), three panels ------------------------------
+
+def read_metrics(path: str) -> list[dict]:
+    """Rows of ``metrics.csv`` from a run directory (or the CSV path itself)."""
+    import csv
+
+    csv_path = os.path.join(path, "metrics.csv") if os.path.isdir(path) else path
+    if not os.path.exists(csv_path):
+        raise FileNotFoundError(f"{path}: no metrics.csv")
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{csv_path} has no rows yet")
+    return rows
+
+
+def run_label(path: str) -> str:
+    """Default label of a run: ``task/algo`` (+ ``/N envs`` when not 2) from its config.json,
+    else the directory name. Runs that differ only in seed get the same label."""
+    import json
+
+    run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
+    cfg_path = os.path.join(run_dir, "config.json")
+    try:
+        with open(cfg_path) as f:
+            c = json.load(f)["config"]
+    except (OSError, ValueError, KeyError):
+        return os.path.basename(os.path.normpath(run_dir))
+    label = f"{c.get('task', '?')}/{c.get('algo', '?')}"
+    if int(c.get("num_envs", 2)) != 2:
+        label += f"/{c['num_envs']} envs"
+    return label
+
+
+def aggregate(runs: Sequence[Sequence[dict]], band: str = "minmax") -> dict:
+    """Aligns runs of one group by epoch (row index) and returns per-epoch arrays: x values
+    ``env_steps`` and ``wall_time`` (mean over the runs that reached that epoch), and for
+    ``test_success_rate`` / ``test_arm_contact_rate`` the mean with a band (``minmax``: min and
+    max over runs; ``std``: mean ± one standard deviation), plus ``n`` runs per epoch."""
+    if band not in ("minmax", "std"):
+        raise ValueError("band must be 'minmax' or 'std'")
+    n_max = max(len(r) for r in runs)
+    out = {k: [] for k in ("env_steps", "wall_time", "n")}
+    for key in ("test_success_rate", "test_arm_contact_rate"):
+        out[key] = {"mean": [], "lo": [], "hi": []}
+    for i in range(n_max):
+        present = [r[i] for r in runs if len(r) > i]
+        out["n"].append(len(present))
+        out["env_steps"].append(np.mean([float(r["env_steps"]) for r in present]))
+        out["wall_time"].append(np.mean([float(r["wall_time"]) for r in present]))
+        for key in ("test_success_rate", "test_arm_contact_rate"):
+            v = np.array([float(r[key]) for r in present])
+            m = float(np.mean(v))
+            if band == "minmax":
+                lo, hi = float(v.min()), float(v.max())
+            else:
+                sd = float(np.std(v))
+                lo, hi = m - sd, m + sd
+            out[key]["mean"].append(m)
+            out[key]["lo"].append(lo)
+            out[key]["hi"].append(hi)
+    for k in ("env_steps", "wall_time", "n"):
+        out[k] = np.asarray(out[k])
+    for key in ("test_success_rate", "test_arm_contact_rate"):
+        out[key] = {k: np.asarray(v) for k, v in out[key].items()}
+    return out
+
+
+def plot_runs(groups: "dict[str, Sequence[Sequence[dict]]]", out: str, title: str = "",
+              band: str = "minmax") -> str:
+    """Three panels: test success vs env steps, test success vs wall clock, arm-contact rate vs
+    env steps; one line (mean over the group's runs) and a shaded band per group."""
+    plt = _mpl()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), dpi=110)
+    panels = (("env_steps", "test_success_rate", "env steps", "test success rate"),
+              ("wall_time", "test_success_rate", "wall clock (s)", "test success rate"),
+              ("env_steps", "test_arm_contact_rate", "env steps", "arm-contact rate (test)"))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    band_name = "min–max" if band == "minmax" else "±1 std"
+    for gi, (label, runs) in enumerate(groups.items()):
+        agg = aggregate(runs, band)
+        color = colors[gi % len(colors)]
+        n = len(runs)
+        name = f"{label} (n={n})" if n > 1 else label
+        for ax, (xk, yk, _, _) in zip(axes, panels):
+            x, y = agg[xk], agg[yk]
+            ax.plot(x, y["mean"], "-", color=color, lw=1.8, label=name,
+                    marker="o" if len(x) <= 30 else None, ms=3)
+            if n > 1:
+                ax.fill_between(x, np.clip(y["lo"], 0, 1), np.clip(y["hi"], 0, 1), color=color,
+                                alpha=0.2, lw=0)
+    for ax, (_, _, xl, yl) in zip(axes, panels):
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower right", fontsize=8,
+                   title=f"mean, band {band_name}" if any(len(r) > 1 for r in groups.values()) else None,
+                   title_fontsize=8)
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     fig.savefig(out)

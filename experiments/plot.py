@@ -1,0 +1,58 @@
+"""Learning curves of one or more runs: test success vs env steps, test success vs wall clock,
+and the arm-contact rate, as three panels (PNG).
+
+Examples
+  python experiments/plot.py runs/reach_s0 --out reach.png
+  python experiments/plot.py runs/reach_daddpg_s{0,1,2} runs/reach_single_s{0,1,2} --out cmp.png
+  python experiments/plot.py runs/a runs/b runs/c --labels daddpg daddpg single --band std --out x.png
+
+Runs that share a label form one group (e.g. seeds): the plot shows the group's mean and a band
+(min-max over its runs by default, or mean +- one std with --band std). Runs are aligned by
+epoch; x values are the mean env steps / wall clock of that epoch over the group's runs.
+Without --labels a run's label is task/algo from its config.json (so seeds group together).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (or metrics.csv files)")
+    p.add_argument("--out", required=True, metavar="FILE.png", help="output image")
+    p.add_argument("--labels", nargs="+", default=None,
+                   help="one label per RUN_DIR; runs with the same label are one group")
+    p.add_argument("--band", choices=["minmax", "std"], default="minmax",
+                   help="band around each group's mean: min-max over runs (default) or +-1 std")
+    p.add_argument("--title", default="", help="figure title")
+    args = p.parse_args(argv)
+    if args.labels is not None and len(args.labels) != len(args.runs):
+        p.error(f"--labels: got {len(args.labels)} labels for {len(args.runs)} runs")
+
+    from daddpg_jax.plotting import plot_runs, read_metrics, run_label
+
+    groups: dict = {}
+    for i, run in enumerate(args.runs):
+        try:
+            rows = read_metrics(run)
+        except (FileNotFoundError, ValueError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        label = args.labels[i] if args.labels else run_label(run)
+        groups.setdefault(label, []).append(rows)
+    out = plot_runs(groups, args.out, title=args.title, band=args.band)
+    for label, runs in groups.items():
+        last = [float(r[-1]["test_success_rate"]) for r in runs]
+        print(f"{label}: {len(runs)} run(s), final test success {', '.join(f'{v:.2f}' for v in last)}")
+    print(f"wrote {os.path.abspath(out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
