@@ -18,6 +18,9 @@ Cartesian tool target by ``max_delta * clip(a[:3], -1, 1)`` metres in the **worl
 of ``daddpg_jax.safety``), with the tool pointing straight down; ``finger`` maps to the opening
 of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice that), or to
 ``locked_opening`` when the task locks the fingers (reach, push).
+
+``run_episode`` / ``run_episodes`` are the robot client's control loop (policy service ->
+safety layer -> targets), used sim-to-sim with ``mjx_envs.numpy_env``. See docs/DEPLOYMENT.md.
 """
 
 from __future__ import annotations

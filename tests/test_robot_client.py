@@ -360,7 +360,7 @@ def test_sim_to_sim_success_matches_trainer_eval(tmp_path):
     from daddpg_jax.runner import train
 
     n = 200
-    cfg = TrainConfig(**preset("reach"), seed=0, n_epochs=2, n_test_episodes=n, physics="c")
+    cfg = TrainConfig(**{**preset("reach"), "n_epochs": 2}, seed=0, n_test_episodes=n, physics="c")
     run = str(tmp_path / "reach")
     res = train(cfg, run, plot=False)
     trainer = res.test_success_rate
