@@ -15,10 +15,7 @@ so that the replay ratio stays near the HER baselines'; --set overrides any fiel
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
-import json
 import os
 import sys
 import time
@@ -26,67 +23,23 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-def _field_docs(cls) -> dict:
-    """Attribute docstrings of a dataclass (the string literal after each field)."""
-    try:
-        tree = ast.parse(inspect.getsource(cls))
-    except (OSError, TypeError):
-        return {}
-    body = tree.body[0].body
-    docs = {}
-    for a, b in zip(body, body[1:]):
-        if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
-            docs[a.target.id] = " ".join(str(b.value.value).split())
-    return docs
-
-
-def _parse_value(text: str, default):
-    if isinstance(default, bool):
-        if text.lower() in ("1", "true", "yes", "on"):
-            return True
-        if text.lower() in ("0", "false", "no", "off"):
-            return False
-        raise ValueError(f"expected a boolean, got {text!r}")
-    if isinstance(default, tuple):
-        parts = [p for p in text.replace("(", "").replace(")", "").split(",") if p.strip()]
-        if default and isinstance(default[0], tuple):
-            return ast.literal_eval(text)
-        kind = type(default[0]) if default else float
-        return tuple(kind(p) for p in parts)
-    if isinstance(default, int):
-        return int(float(text)) if "e" in text.lower() else int(text)
-    if isinstance(default, float):
-        return float(text)
-    return text
-
-
-def _kv(items, defaults: dict, what: str) -> dict:
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise SystemExit(f"error: {what} expects KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        k = k.strip().replace("-", "_")
-        if k not in defaults:
-            raise SystemExit(f"error: unknown {what} field {k!r}; valid: {', '.join(sorted(defaults))}")
-        try:
-            out[k] = _parse_value(v.strip(), defaults[k])
-        except ValueError as e:
-            raise SystemExit(f"error: {what} {k}: {e}")
-    return out
-
-
 def build_parser():
+    from daddpg_jax.cli import field_docs as _field_docs
     from daddpg_jax.config import TrainConfig
     from mjx_envs.core import TaskConfig
+    from mjx_envs.push import ObjectTaskConfig
 
     tdocs, edocs = _field_docs(TrainConfig), _field_docs(TaskConfig)
+    odocs = _field_docs(ObjectTaskConfig)
     tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
     edef = {f.name: f.default for f in dataclasses.fields(TaskConfig)}
+    odef = {f.name: f.default for f in dataclasses.fields(ObjectTaskConfig) if f.name not in edef}
     epilog = ["training fields for --set KEY=VALUE (default; meaning):"]
     epilog += [f"  {k} ({tdef[k]!r}): {tdocs.get(k, '')}" for k in tdef]
     epilog += ["", "env fields for --env KEY=VALUE (reach default; meaning):"]
     epilog += [f"  {k} ({edef[k]!r}): {edocs.get(k, '')}" for k in edef]
+    epilog += ["", "additional env fields of push, pickup and pot (push default; meaning):"]
+    epilog += [f"  {k} ({odef[k]!r}): {odocs.get(k, '')}" for k in odef]
     p = argparse.ArgumentParser(
         prog="run.py", description=__doc__, epilog="\n".join(epilog),
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -123,25 +76,34 @@ def build_parser():
     return p
 
 
+def _env_overrides(items, task: str) -> dict:
+    """--env KEY=VALUE items checked against the fields of the task's default_config()."""
+    import mjx_envs
+    from daddpg_jax.cli import parse_overrides
+
+    defaults = {f.name: getattr(mjx_envs.default_config(task), f.name)
+                for f in dataclasses.fields(mjx_envs.default_config(task))}
+    return parse_overrides(items, defaults, "--env")
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
 
     from daddpg_jax import checkpoint as ckpt
+    from daddpg_jax.cli import parse_overrides as _kv
     from daddpg_jax.config import TrainConfig, preset
     from daddpg_jax.runner import NonFiniteLoss, train
-    from mjx_envs.core import TaskConfig
+    import mjx_envs
 
     tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    edef = {f.name: f.default for f in dataclasses.fields(TaskConfig)}
-    env_over = _kv(args.env, edef, "--env")
     sets = _kv(args.set, tdef, "--set")
     if args.resume:
         run_dir = args.resume
         if not os.path.exists(os.path.join(run_dir, "config.json")):
             parser.error(f"--resume: {run_dir}/config.json not found")
         cfg, payload = ckpt.load_config(run_dir)
-        env_over = {**payload.get("env_overrides", {}), **env_over}
+        env_over = {**payload.get("env_overrides", {}), **_env_overrides(args.env, cfg.task)}
         for name in ("task", "num_envs", "algo", "her", "physics", "seed"):
             v = getattr(args, name)
             if v is not None and v != getattr(cfg, name):
@@ -150,6 +112,7 @@ def main(argv=None):
         over = dict(sets)
     else:
         task = args.task or "reach"
+        env_over = _env_overrides(args.env, task)
         over = preset(task, args.num_envs)
         for name in ("algo", "her", "physics", "seed"):
             v = getattr(args, name)
