@@ -30,6 +30,9 @@ from typing import Any, Optional
 
 import numpy as np
 
+# MuJoCo picks its OpenGL backend when it is first imported: headless EGL unless told otherwise
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 Z95 = 1.959963984540054  # standard normal quantile 0.975
 
 
@@ -48,7 +51,9 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     denom = 1.0 + z2 / n
     centre = (p + z2 / (2 * n)) / denom
     half = z / denom * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)   # exact ends (no rounding residue)
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return (lo, hi)
 
 
 class NoCheckpointError(FileNotFoundError):
@@ -217,8 +222,8 @@ def render_frames(policy: Policy, traj: dict, n_episodes: int = 3, width: int = 
         r = Renderer(policy.env, width=width, height=height)
     except Exception as e:  # noqa: BLE001 (no EGL, no GL context, ...)
         raise RenderUnavailable(
-            f"rendering failed ({type(e).__name__}: {e}); set MUJOCO_GL=egl and install "
-            "libegl1 libegl-mesa0 libgl1-mesa-dri") from e
+            f"rendering failed ({type(e).__name__}: {e}); set MUJOCO_GL=egl before MuJoCo is "
+            "imported and install libegl1 libegl-mesa0 libgl1-mesa-dri") from e
     frames = []
     try:
         for e in range(min(n_episodes, len(traj["goal"]))):

@@ -1,0 +1,121 @@
+"""Evaluation of a trained run (daddpg_jax/evaluation.py, experiments/evaluate.py): Wilson
+interval, output fields, agreement with the run's own logged test success, CLI and video."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from daddpg_jax import evaluation
+from daddpg_jax.config import TrainConfig
+from daddpg_jax.runner import train
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+N_TEST = 12
+TINY = TrainConfig(task="reach", physics="c", hidden=(32, 32), n_cycles=2, n_batches=2,
+                   batch_size=64, buffer_size=10_000, n_test_episodes=N_TEST, n_epochs=1, seed=1)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    d = str(tmp_path_factory.mktemp("eval") / "reach_tiny")
+    train(TINY, d, plot=False)
+    return d
+
+
+@pytest.fixture(scope="module")
+def policy(run_dir):
+    return evaluation.load_policy(run_dir)
+
+
+def test_wilson_interval_hand_computed():
+    # p = 0.95, n = 100, z = 1.96: centre (0.95 + 0.019207) / 1.038415 = 0.933351,
+    # half 1.96 / 1.038415 * sqrt(0.000475 + 0.0000960) = 0.045103
+    lo, hi = evaluation.wilson_interval(95, 100)
+    assert lo == pytest.approx(0.888250, abs=1e-5) and hi == pytest.approx(0.978456, abs=1e-5)
+    lo, hi = evaluation.wilson_interval(7, 20)
+    assert lo == pytest.approx(0.181192, abs=1e-5) and hi == pytest.approx(0.567146, abs=1e-5)
+    lo, hi = evaluation.wilson_interval(0, 10)   # not empty at p = 0
+    assert lo == 0.0 and hi == pytest.approx(0.277533, abs=1e-5)
+    assert evaluation.wilson_interval(10, 10)[0] == pytest.approx(0.722467, abs=1e-5)
+    with pytest.raises(ValueError):
+        evaluation.wilson_interval(11, 10)
+
+
+def test_evaluate_fields_and_logged_success(policy, run_dir):
+    s, traj = evaluation.evaluate(policy, episodes=N_TEST)  # default seed = the run's eval_seed
+    for k in ("success_rate", "successes", "success_ci95", "arm_contact_rate",
+              "arm_contact_ci95", "final_distance_mean", "final_distance_median", "episodes",
+              "seed", "checkpoint", "task", "algo", "physics"):
+        assert k in s, k
+    assert s["checkpoint"] == 1 and s["episodes"] == N_TEST and s["seed"] == TINY.eval_seed
+    lo, hi = s["success_ci95"]
+    assert 0.0 <= lo <= s["success_rate"] <= hi <= 1.0
+    assert (lo, hi) == pytest.approx(evaluation.wilson_interval(s["successes"], N_TEST))
+    assert set(s["final_distance_mean"]) == {"left", "right"}
+    assert all(v > 0 for v in s["final_distance_mean"].values())
+    import csv
+
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        row = list(csv.DictReader(f))[-1]
+    # same episodes and actors as the trainer's evaluation of that epoch
+    assert s["success_rate"] == pytest.approx(float(row["test_success_rate"]))
+    assert s["arm_contact_rate"] == pytest.approx(float(row["test_arm_contact_rate"]))
+    assert s["final_distance_mean"]["left"] == pytest.approx(
+        float(row["test_final_distance_left"]), rel=1e-4)
+    T = policy.env.episode_length
+    assert traj["qpos"].shape[:2] == (N_TEST, T + 1)
+    assert traj["mocap"].shape == (N_TEST, T + 1, 2, 3) and traj["goal"].shape == (N_TEST, 2, 3)
+    # deterministic: the same seed gives the same result, another seed other episodes
+    s2, traj2 = evaluation.evaluate(policy, episodes=N_TEST)
+    np.testing.assert_array_equal(traj["final_distance"], traj2["final_distance"])
+    _, traj3 = evaluation.evaluate(policy, episodes=N_TEST, seed=5)
+    assert not np.array_equal(traj["goal"], traj3["goal"])
+    assert "success rate" in evaluation.format_summary(s)
+
+
+def test_no_checkpoint_is_a_clear_error(tmp_path, run_dir):
+    with pytest.raises(evaluation.NoCheckpointError, match="no config.json"):
+        evaluation.load_policy(str(tmp_path))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "config.json").write_text(open(os.path.join(run_dir, "config.json")).read())
+    with pytest.raises(evaluation.NoCheckpointError, match="no checkpoint"):
+        evaluation.load_policy(str(empty))
+    with pytest.raises(evaluation.NoCheckpointError, match="available: \\[1\\]"):
+        evaluation.load_policy(run_dir, step=7)
+
+
+def test_cli_json_and_error(run_dir, tmp_path):
+    script = os.path.join(ROOT, "experiments", "evaluate.py")
+    out = subprocess.run([sys.executable, script, run_dir, "--episodes", "8", "--seed", "3",
+                          "--json"], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    s = json.loads(out.stdout)
+    assert s["episodes"] == 8 and s["seed"] == 3 and len(s["success_ci95"]) == 2
+    bad = subprocess.run([sys.executable, script, str(tmp_path)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert bad.returncode == 2 and "no config.json" in bad.stderr
+
+
+def test_video(run_dir, tmp_path):
+    """--video through the CLI (a fresh process, so MUJOCO_GL=egl applies before MuJoCo loads)."""
+    path = str(tmp_path / "eval.mp4")
+    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "evaluate.py"),
+                          run_dir, "--episodes", "2", "--video", path, "--video-episodes", "2",
+                          "--width", "160", "--height", "120"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=300)
+    if out.returncode == 1 and "rendering failed" in out.stderr:
+        pytest.skip(f"no headless OpenGL here: {out.stderr.strip()[-300:]}")
+    assert out.returncode == 0, out.stderr[-2000:]
+    written = path if os.path.exists(path) else path[:-4] + ".gif"   # GIF without imageio-ffmpeg
+    assert os.path.getsize(written) > 1000
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(written, memtest=False)
+    assert len(frames) == 2 * (50 + 1 + 12)
+    assert np.asarray(frames[0]).shape[:2] == (120, 160)
+    assert np.asarray(frames[0]).std() > 5  # not a blank image

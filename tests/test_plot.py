@@ -1,0 +1,83 @@
+"""Multi-run plots (daddpg_jax/plotting.py, experiments/plot.py) from fake metrics.csv files."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from daddpg_jax import plotting
+from daddpg_jax.runner import METRIC_COLUMNS
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _fake_run(path, success, wall_per_epoch, algo="daddpg", seed=0):
+    os.makedirs(path, exist_ok=True)
+    with open(os.path.join(path, "metrics.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
+        w.writeheader()
+        for i, s in enumerate(success):
+            row = {k: 0.0 for k in METRIC_COLUMNS}
+            row.update(epoch=i + 1, env_steps=2000 * (i + 1), wall_time=wall_per_epoch * (i + 1),
+                       test_success_rate=s, test_arm_contact_rate=0.1 + 0.05 * i)
+            w.writerow(row)
+    with open(os.path.join(path, "config.json"), "w") as f:
+        json.dump({"config": {"task": "reach", "algo": algo, "num_envs": 2, "seed": seed}}, f)
+    return str(path)
+
+
+def _check_png(path):
+    import matplotlib.image as mpimg
+
+    assert os.path.getsize(path) > 20_000
+    img = mpimg.imread(path)
+    assert img.shape[0] > 300 and img.shape[1] > 3 * img.shape[0] // 2   # three panels side by side
+    rgb = img[..., :3]
+    assert (rgb.std(axis=-1) > 0.1).mean() > 0.002     # coloured curves and bands, not just axes
+
+
+def test_aggregate_mean_and_band(tmp_path):
+    a = plotting.read_metrics(_fake_run(tmp_path / "a", [0.0, 0.5, 0.9], 10.0))
+    b = plotting.read_metrics(_fake_run(tmp_path / "b", [0.2, 0.7], 12.0, seed=1))
+    agg = plotting.aggregate([a, b])
+    np.testing.assert_allclose(agg["test_success_rate"]["mean"], [0.1, 0.6, 0.9])
+    np.testing.assert_allclose(agg["test_success_rate"]["lo"], [0.0, 0.5, 0.9])
+    np.testing.assert_allclose(agg["test_success_rate"]["hi"], [0.2, 0.7, 0.9])
+    np.testing.assert_allclose(agg["wall_time"], [11.0, 22.0, 30.0])
+    np.testing.assert_array_equal(agg["n"], [2, 2, 1])
+    sd = plotting.aggregate([a, b], band="std")
+    np.testing.assert_allclose(sd["test_success_rate"]["hi"], [0.2, 0.7, 0.9])
+    # seeds of one configuration share a default label
+    assert plotting.run_label(str(tmp_path / "a")) == plotting.run_label(str(tmp_path / "b")) \
+        == "reach/daddpg"
+
+
+def test_cli_two_runs_png(tmp_path):
+    a = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8, 1.0], 10.0)
+    b = _fake_run(tmp_path / "b", [0.1, 0.6, 0.9, 1.0], 11.0, seed=1)
+    c = _fake_run(tmp_path / "c", [0.0, 0.1, 0.3, 0.5], 8.0, algo="single")
+    out = str(tmp_path / "cmp.png")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b, c,
+                        "--out", out, "--title", "fake"], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "reach/daddpg: 2 run(s)" in r.stdout and "reach/single: 1 run(s)" in r.stdout
+    _check_png(out)
+    bad = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b,
+                          "--labels", "x", "--out", out], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120)
+    assert bad.returncode != 0 and "--labels" in bad.stderr
+
+
+def test_plot_runs_with_labels_and_single_run_curve(tmp_path):
+    a = plotting.read_metrics(_fake_run(tmp_path / "a", [0.0, 0.5], 10.0))
+    b = plotting.read_metrics(_fake_run(tmp_path / "b", [0.3, 0.6], 10.0))
+    out = plotting.plot_runs({"x": [a, b]}, str(tmp_path / "p.png"), band="std")
+    _check_png(out)
+    assert os.path.exists(plotting.plot_learning_curve(a, str(tmp_path / "one.png")))
+    with pytest.raises(FileNotFoundError):
+        plotting.read_metrics(str(tmp_path / "missing"))
