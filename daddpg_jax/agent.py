@@ -133,18 +133,40 @@ def actor_loss(actor_params, critic_params, batch, learner: Learner):
     return jnp.sum(per_agent), dict(actor_loss=per_agent)
 
 
-def update(agent: AgentState, batch, learner: Learner):
+def update(agent: AgentState, batch, learner: Learner, axis_name=None):
     """One gradient step of every actor and critic from the same minibatch (both losses use the
-    pre-update parameters, as the HER baselines do). Returns (agent, metrics)."""
+    pre-update parameters, as the HER baselines do). Returns (agent, metrics).
+
+    axis_name: inside ``shard_map`` over devices, each device holds an equal slice of the
+    batch; gradients and metrics are ``pmean``-ed over that axis before the Optax update, so
+    the result equals the update on the whole batch and parameters stay replicated."""
+    critic_p, actor_p = agent.critic, agent.actor
+    if axis_name is not None:
+        # differentiate per-device copies: the gradients are then this device's batch-mean
+        # gradients (with check_vma, JAX would otherwise psum gradients of replicated inputs
+        # implicitly), averaged explicitly below
+        critic_p, actor_p = _pvary((critic_p, actor_p), axis_name)
     (_, c_aux), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
-        agent.critic, agent.target_actor, agent.target_critic, batch, learner)
+        critic_p, agent.target_actor, agent.target_critic, batch, learner)
     (_, a_aux), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
-        agent.actor, agent.critic, batch, learner)
+        actor_p, agent.critic, batch, learner)
+    if axis_name is not None:
+        c_grads, a_grads, c_aux, a_aux = jax.lax.pmean((c_grads, a_grads, c_aux, a_aux), axis_name)
     c_upd, critic_opt = learner.critic_tx.update(c_grads, agent.critic_opt, agent.critic)
     a_upd, actor_opt = learner.actor_tx.update(a_grads, agent.actor_opt, agent.actor)
     agent = agent.replace(critic=optax.apply_updates(agent.critic, c_upd), critic_opt=critic_opt,
                           actor=optax.apply_updates(agent.actor, a_upd), actor_opt=actor_opt)
     return agent, {**c_aux, **a_aux}
+
+
+def _pvary(tree, axis_name):
+    """Marks replicated values as device-varying inside shard_map (no-op without VMA checks)."""
+    def cast(x):
+        try:
+            return jax.lax.pcast(x, axis_name, to="varying")
+        except ValueError:  # already varying over axis_name
+            return x
+    return jax.tree.map(cast, tree)
 
 
 def update_targets(agent: AgentState, polyak: float) -> AgentState:

@@ -95,7 +95,12 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
         full["buffer"] = out["buffer"]
     # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys
     # its cache on that, so re-place the restored arrays uncommitted: no recompile on resume.
-    full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
+    # A multi-device template (sharded replay, see daddpg_jax/sharding.py) is committed to its
+    # NamedShardings already and orbax restores into exactly those: keep them as they are.
+    from daddpg_jax.sharding import is_multi_device
+
+    if not is_multi_device(template):
+        full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
     if not restore_buffer:
         full["buffer"] = buffer
     return serialization.from_state_dict(template, full), step

@@ -80,6 +80,9 @@ class TrainConfig:
     """store the replay buffer in checkpoints (needed for a bit-exact resume; large)"""
     keep_checkpoints: int = 3
     """number of most recent checkpoints kept"""
+    num_devices: int = 0
+    """local devices to spread envs, replay and the update batch over (0 = all local devices;
+    1 = the single-device code path). num_envs and batch_size must be multiples of it"""
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -90,6 +93,8 @@ class TrainConfig:
             raise ValueError(f"other_action must be 'buffer' or 'policy', got {self.other_action!r}")
         if self.replay_k < 0:
             raise ValueError("replay_k must be >= 0")
+        if self.num_devices < 0:
+            raise ValueError("num_devices must be >= 0 (0 = all local devices)")
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
 
     @property

@@ -30,13 +30,22 @@ def init(shape) -> NormState:
                      m2=jnp.zeros(shape, jnp.float32))
 
 
-def update(state: NormState, x: jax.Array, clip_obs: float = 200.0) -> NormState:
-    """Merges a batch x [..., *shape] (all leading axes are samples) into the statistics."""
+def update(state: NormState, x: jax.Array, clip_obs: float = 200.0, axis_name=None) -> NormState:
+    """Merges a batch x [..., *shape] (all leading axes are samples) into the statistics.
+
+    axis_name: inside ``shard_map``, x is this device's part of the batch; the batch moments of
+    all devices are merged first (psum of counts, Chan's formula), so every device ends with the
+    statistics of the whole batch."""
     feat = state.mean.shape
     x = jnp.clip(x.astype(jnp.float32), -clip_obs, clip_obs).reshape((-1,) + feat)
     n_b = jnp.asarray(x.shape[0], jnp.float32)
     mean_b = jnp.mean(x, axis=0)
     m2_b = jnp.sum(jnp.square(x - mean_b), axis=0)
+    if axis_name is not None:
+        n_l, mean_l = n_b, mean_b
+        n_b = jax.lax.psum(n_l, axis_name)
+        mean_b = jax.lax.psum(mean_l * n_l, axis_name) / n_b
+        m2_b = jax.lax.psum(m2_b + jnp.square(mean_l - mean_b) * n_l, axis_name)
     n = state.count + n_b
     delta = mean_b - state.mean
     mean = state.mean + delta * (n_b / n)

@@ -15,6 +15,10 @@ optional progress callback runs once per cycle through `jax.debug.callback`.
 
 Counters are int32 (`cycles`, `updates`); env steps are cycles * num_envs * T, computed in
 Python by `TrainFns.env_steps` so they cannot overflow.
+
+Several local devices (cfg.num_devices, 0 = all): the cycle body runs under `shard_map` over a
+1-d device mesh, data parallel over envs, replay shards and the update batch (see
+daddpg_jax/sharding.py). One device: the code path below without any mesh.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from daddpg_jax import agent as agent_lib
 from daddpg_jax import networks as nets
 from daddpg_jax import normalizer as norm
 from daddpg_jax import replay
+from daddpg_jax import sharding as shd
 from daddpg_jax.config import TrainConfig
 
 
@@ -52,8 +57,11 @@ class TrainFns(NamedTuple):
     env_steps: Callable       # env_steps(state) -> int
     learner: agent_lib.Learner
     config: TrainConfig
-    capacity: int             # buffer capacity in episodes
+    capacity: int             # buffer capacity in episodes (all devices together)
     horizon: int
+    num_devices: int = 1      # devices the cycle is spread over
+    mesh: Optional[object] = None   # jax.sharding.Mesh when num_devices > 1
+    state_shardings: Optional[object] = None   # TrainState of NamedShardings when num_devices > 1
 
 
 def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
@@ -74,6 +82,13 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     algo, n_agents = cfg.algo, cfg.num_agents
     info_keys = tuple(env.info_keys)
     capacity = replay.capacity_episodes(cfg.buffer_size, T, cfg.num_envs)
+    n_dev = shd.resolve_num_devices(cfg.num_devices)
+    mesh = None
+    if n_dev > 1:
+        shd.check_divisible(cfg.num_envs, cfg.batch_size, n_dev)
+        capacity = shd.sharded_capacity(capacity, n_dev)
+        mesh = shd.make_mesh(n_dev)
+    n_envs_local, batch_local = cfg.num_envs // n_dev, cfg.batch_size // n_dev
     future_p = cfg.future_p
     norm_kw = dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
 
@@ -140,27 +155,35 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
                           buffer=buf, key=k_state,
                           cycles=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32))
 
-    def train_cycle(state: TrainState, _):
+    def cycle_body(state: TrainState, axis=None):
+        """One cycle; axis=None: single device; else the body of a shard_map over `axis` (this
+        device's envs, replay shard and batch slice; buffer index/size are local values)."""
         key, k_roll, k_norm, k_upd = jax.random.split(state.key, 4)
-        episodes, tr = rollout(state, k_roll, cfg.num_envs, explore=True)
+        if axis is not None:
+            dev = jax.lax.axis_index(axis)
+            k_roll, k_norm, k_upd = (jax.random.fold_in(k, dev) for k in (k_roll, k_norm, k_upd))
+        episodes, tr = rollout(state, k_roll, n_envs_local, explore=True)
         buf = replay.insert(state.buffer, episodes)
 
-        ep = jnp.repeat(jnp.arange(cfg.num_envs, dtype=jnp.int32), T)
-        t = jnp.tile(jnp.arange(T, dtype=jnp.int32), cfg.num_envs)
+        ep = jnp.repeat(jnp.arange(n_envs_local, dtype=jnp.int32), T)
+        t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n_envs_local)
         nt = replay.her_transitions(k_norm, episodes, ep, t, cfg.her, future_p, env.compute_reward)
-        obs_norm = norm.update(state.obs_norm, nt["o"], cfg.clip_obs)
-        goal_norm = norm.update(state.goal_norm, nt["g"], cfg.clip_obs)
+        obs_norm = norm.update(state.obs_norm, nt["o"], cfg.clip_obs, axis_name=axis)
+        goal_norm = norm.update(state.goal_norm, nt["g"], cfg.clip_obs, axis_name=axis)
         state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
 
         def one_update(agent, xs):
             k, i = xs
-            b = replay.sample(k, buf, cfg.batch_size, cfg.her, future_p, env.compute_reward)
+            b = replay.sample(k, buf, batch_local, cfg.her, future_p, env.compute_reward)
             o, g = normalize_inputs(state, b["o"], b["g"])
             o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
             batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
-            out = agent_lib.update(agent, batch, learner)
+            out = agent_lib.update(agent, batch, learner, axis_name=axis)
             if update_progress is not None and update_tick:
-                jax.lax.cond((i + 1) % update_tick == 0,
+                tick = (i + 1) % update_tick == 0
+                if axis is not None:
+                    tick = tick & (jax.lax.axis_index(axis) == 0)
+                jax.lax.cond(tick,
                              lambda: jax.debug.callback(update_progress, i + 1, ordered=False),
                              lambda: None)
             return out
@@ -173,11 +196,48 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"])) & jnp.all(jnp.isfinite(um["actor_loss"])))
         state = state.replace(agent=a_state, key=key, cycles=state.cycles + 1,
                               updates=state.updates + cfg.n_batches)
-        metrics = dict(rollout_metrics(episodes, tr), **um, nonfinite=nonfinite,
+        r_metrics = rollout_metrics(episodes, tr)
+        if axis is not None:
+            r_metrics = jax.lax.pmean(r_metrics, axis)
+        metrics = dict(r_metrics, **um, nonfinite=nonfinite,
                        cycle=state.cycles, buffer_episodes=buf.size)
+        return state, metrics
+
+    def train_cycle(state: TrainState, _):
+        state, metrics = cycle_body(state)
         if progress is not None:
             jax.debug.callback(progress, metrics, ordered=False)
         return state, metrics
+
+    state_specs = state_shardings = None
+    if mesh is not None:
+        state_specs = shd.train_state_specs(jax.eval_shape(init, jax.random.PRNGKey(0)))
+        state_shardings = shd.named_shardings(mesh, state_specs)
+
+        def local_cycle(state: TrainState):
+            # global ring index/size -> this device's (every device inserts n_envs_local)
+            b = state.buffer
+            state = state.replace(buffer=b.replace(insert_idx=b.insert_idx // n_dev,
+                                                   size=b.size // n_dev))
+            state, metrics = cycle_body(state, shd.AXIS)
+            b = state.buffer
+            state = state.replace(buffer=b.replace(insert_idx=b.insert_idx * n_dev,
+                                                   size=b.size * n_dev))
+            metrics["buffer_episodes"] = state.buffer.size
+            return state, metrics
+
+        # check_vma=False: env code (not written for shard_map) may start a scan carry from
+        # device-invariant values that the varying actions then make device-varying; the
+        # replicated outputs are made identical on every device by pmean/psum above.
+        sharded_cycle = shd.shard_map(local_cycle, mesh, in_specs=(state_specs,),
+                                      out_specs=(state_specs, jax.sharding.PartitionSpec()),
+                                      check_vma=False)
+
+        def train_cycle(state: TrainState, _):  # noqa: F811 (multi-device variant)
+            state, metrics = sharded_cycle(state)
+            if progress is not None:
+                jax.debug.callback(progress, metrics, ordered=False)
+            return state, metrics
 
     def train_epoch(state: TrainState):
         return jax.lax.scan(train_cycle, state, None, length=cfg.n_cycles)
@@ -197,15 +257,22 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     def env_steps(state: TrainState) -> int:
         return int(state.cycles) * cfg.num_envs * T
 
-    return TrainFns(init=_init_wrapper(init, cfg),
-                    train_epoch=jax.jit(train_epoch, donate_argnums=0),
+    if mesh is None:
+        epoch_jit = jax.jit(train_epoch, donate_argnums=0)
+    else:
+        rep_sh = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+        epoch_jit = jax.jit(train_epoch, donate_argnums=0, in_shardings=(state_shardings,),
+                            out_shardings=(state_shardings, rep_sh))
+    return TrainFns(init=_init_wrapper(init, cfg, state_shardings),
+                    train_epoch=epoch_jit,
                     evaluate=evaluate, act=jax.jit(act),
                     rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
-                    learner=learner, config=cfg, capacity=capacity, horizon=T)
+                    learner=learner, config=cfg, capacity=capacity, horizon=T,
+                    num_devices=n_dev, mesh=mesh, state_shardings=state_shardings)
 
 
-def _init_wrapper(init_fn, cfg):
-    init_jit = jax.jit(init_fn)
+def _init_wrapper(init_fn, cfg, shardings=None):
+    init_jit = jax.jit(init_fn) if shardings is None else jax.jit(init_fn, out_shardings=shardings)
 
     def init(key=None):
         if key is None:

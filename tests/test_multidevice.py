@@ -1,0 +1,175 @@
+"""Multi-device training on 2 forced host CPU devices (daddpg_jax/sharding.py).
+
+XLA reads --xla_force_host_platform_device_count only before JAX starts, so every check runs
+in a fresh Python process with XLA_FLAGS set and prints one JSON line that the test reads.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+PRELUDE = """
+import json, os, sys
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_compilation_cache_dir",
+                  os.environ.get("DADDPG_JAX_CACHE", os.path.expanduser("~/.cache/daddpg_jax_jit")))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+assert len(jax.local_devices()) == 2, jax.local_devices()
+"""
+
+
+def run_2dev(body: str, timeout: int = 240) -> dict:
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu", PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    code = PRELUDE + textwrap.dedent(body)
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=timeout)
+    if p.returncode != 0:
+        raise AssertionError(f"2-device script failed (rc {p.returncode}):\n{p.stdout[-3000:]}\n"
+                             f"{p.stderr[-6000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def test_sharded_update_equals_unsharded_update():
+    out = run_2dev("""
+    from daddpg_jax import agent as agent_lib, normalizer as norm, sharding as shd
+    from daddpg_jax.config import TrainConfig
+    from jax.sharding import PartitionSpec as P
+    OBS, B = 25, 64
+    res = {}
+    for algo in ("daddpg", "single"):
+        cfg = TrainConfig(algo=algo, hidden=(32, 32))
+        learner = agent_lib.make_learner(cfg, (-1.05, 0.0))
+        st = agent_lib.init_agent_state(jax.random.PRNGKey(0), learner, cfg.hidden, OBS)
+        n_ag = cfg.num_agents
+        ks = jax.random.split(jax.random.PRNGKey(1), 5)
+        batch = dict(o=jax.random.normal(ks[0], (B, 2, OBS)), o2=jax.random.normal(ks[1], (B, 2, OBS)),
+                     g=jax.random.normal(ks[2], (B, 2, 3)),
+                     a=jax.random.uniform(ks[3], (B, 8), minval=-1, maxval=1),
+                     r=-jax.random.bernoulli(ks[4], 0.5, (n_ag, B)).astype(jnp.float32))
+        mesh = shd.make_mesh(2)
+        ref_st, ref_m = jax.jit(agent_lib.update, static_argnums=2)(st, batch, learner)
+        sh_st, sh_m = shd.sharded_update(mesh, learner)(st, batch)
+        # two more steps so that Adam's moments matter
+        upd = shd.sharded_update(mesh, learner)
+        ref2, sh2 = ref_st, sh_st
+        for _ in range(2):
+            ref2, _ = jax.jit(agent_lib.update, static_argnums=2)(ref2, batch, learner)
+            sh2, _ = upd(sh2, batch)
+        diff = lambda a, b: max(float(np.max(np.abs(np.asarray(x) - np.asarray(y))))
+                                for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+        res[algo] = dict(state=diff(ref_st, sh_st), metrics=diff(ref_m, sh_m), state3=diff(ref2, sh2),
+                         moved=diff(st.critic, ref_st.critic),
+                         replicated=all(x.sharding.is_fully_replicated for x in jax.tree.leaves(sh_st)))
+    # normalizer: per-device moments merged across devices == moments of the whole batch
+    x = jax.random.normal(jax.random.PRNGKey(3), (40, 2, 25)) * 3 + 1
+    s0 = norm.update(norm.init((2, 25)), x[:8] * 0.5)
+    ref = norm.update(s0, x)
+    f = shd.shard_map(lambda s, xl: norm.update(s, xl, axis_name=shd.AXIS), shd.make_mesh(2),
+                      in_specs=(P(), P(shd.AXIS)), out_specs=P())
+    got = jax.jit(f)(s0, x)
+    res["norm"] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)) / (1 + np.abs(np.asarray(a)))))
+                      for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got)))
+    print(json.dumps(res))
+    """)
+    for algo in ("daddpg", "single"):
+        r = out[algo]
+        assert r["moved"] > 1e-4, r          # the update did something
+        assert r["state"] < 1e-5 and r["metrics"] < 1e-5 and r["state3"] < 1e-5, (algo, r)
+        assert r["replicated"], r
+    assert out["norm"] < 1e-5, out
+
+
+def test_two_device_toy_training_learns_and_resumes(tmp_path):
+    out = run_2dev(f"""
+    from daddpg_jax import checkpoint as ckpt
+    from daddpg_jax.config import TrainConfig
+    from daddpg_jax.train import make_train_fns
+    from tests import toy_env
+    T = 10
+    env = toy_env.make(episode_length=T, threshold=0.03, goal_range=0.1)
+    res = {{}}
+    try:
+        make_train_fns(env, TrainConfig(num_envs=3, batch_size=32))
+    except ValueError as e:
+        res["error"] = str(e)
+    cfg = TrainConfig(hidden=(64, 64), num_envs=4, n_cycles=10, n_batches=20, batch_size=128,
+                      buffer_size=200_000, n_test_episodes=100, seed=0)
+    seen = []
+    f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
+    s = f.init()
+    res["n_dev"] = f.num_devices
+    res["buffer_sharded"] = str(s.buffer.data.obs.sharding.spec)
+    rates = [float(f.evaluate(s)["success"])]
+    finite = True
+    run = {str(tmp_path / "run")!r}
+    for epoch in range(6):
+        s, m = f.train_epoch(s)
+        finite &= not bool(np.any(m["nonfinite"])) and all(
+            bool(np.all(np.isfinite(np.asarray(v)))) for v in jax.tree.leaves(m))
+        rates.append(float(f.evaluate(s)["success"]))
+        if epoch == 1:
+            ckpt.save(run, s, step=2, save_buffer=True)
+            s2_copy = jax.tree.map(jnp.copy, s)
+    jax.effects_barrier()
+    res.update(rates=rates, finite=finite, seen=len(seen), buffer_episodes=int(m["buffer_episodes"][-1]),
+               norm_count=float(s.obs_norm.count), updates=int(s.updates))
+    # resume from the sharded checkpoint: same shardings, no recompile, same next epoch
+    restored, step = ckpt.restore(run, f.init(jax.random.PRNGKey(9)))
+    res["restored_sharding"] = str(restored.buffer.data.obs.sharding.spec)
+    res["restored_equal"] = all(np.array_equal(np.asarray(a), np.asarray(b))
+                                for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(s2_copy)))
+    a1, m1 = f.train_epoch(restored)
+    a2, m2 = f.train_epoch(s2_copy)
+    res["resume_equal"] = all(np.array_equal(np.asarray(m1[k]), np.asarray(m2[k])) for k in m1)
+    res["cache"] = f.train_epoch._cache_size()
+    print(json.dumps(res))
+    """)
+    assert "num_envs=3" in out["error"] and "divisible" in out["error"]
+    assert out["n_dev"] == 2 and "dev" in out["buffer_sharded"]
+    assert out["finite"]
+    assert out["seen"] == 60                              # progress once per cycle, not per device
+    assert out["buffer_episodes"] == 4 * 60 and out["norm_count"] == 4 * 60 * 10
+    assert out["updates"] == 6 * 10 * 20
+    rates = out["rates"]
+    # learns like the single-device run (tests/test_train.py::test_learns_toy_reach; measured
+    # 2 devices: 0.0 ... 0.60, 0.97 after epochs 5, 6; 1 device: 0.77, 1.0)
+    assert max(rates[-2:]) >= rates[0] + 0.5, rates
+    assert "dev" in out["restored_sharding"] and out["restored_equal"] and out["resume_equal"]
+    assert out["cache"] == 1
+
+
+def test_two_device_reach_c_engine_callback_per_shard():
+    out = run_2dev("""
+    import mjx_envs
+    from daddpg_jax.config import TrainConfig
+    from daddpg_jax.train import make_train_fns
+    env = mjx_envs.make("reach", physics="c", episode_length=10)
+    sizes = []
+    host_step = env.backend._host_step
+    def spy(time, *a):
+        sizes.append(int(np.size(time)))
+        return host_step(time, *a)
+    env.backend._host_step = spy
+    cfg = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=1, n_batches=2, batch_size=32,
+                      buffer_size=400, n_test_episodes=4, physics="c")
+    f = make_train_fns(env, cfg)
+    s, m = f.train_epoch(f.init())
+    jax.block_until_ready(s)
+    ev = f.evaluate(s)
+    print(json.dumps(dict(n_dev=f.num_devices, sizes=sorted(set(sizes)), calls=len(sizes),
+                          finite=bool(all(np.all(np.isfinite(np.asarray(v))) for v in jax.tree.leaves(m))),
+                          nonfinite=bool(np.any(m["nonfinite"])), frozen=env.backend.frozen_count,
+                          buffer=int(m["buffer_episodes"][-1]), success=float(ev["success"]))))
+    """)
+    assert out["n_dev"] == 2
+    # training steps call the C engine once per device with its 2 envs (evaluation: 4 envs)
+    assert 2 in out["sizes"] and out["calls"] >= 2 * 10, out
+    assert out["finite"] and not out["nonfinite"] and out["frozen"] == 0
+    assert out["buffer"] == 4
