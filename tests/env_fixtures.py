@@ -52,6 +52,14 @@ class Rollout:
                                 *[s.obs for s in self.states])  # [B, T+1, ...]
         self.metrics = jax.tree.map(lambda *x: np.stack([np.asarray(v) for v in x], 1),
                                     *[s.metrics for s in self.states[1:]])  # [B, T]
+        # a second full episode with uniformly random actions in every env (same compiled step)
+        rand = np.random.default_rng(1).uniform(-1, 1, (T, B, 8)).astype(np.float32)
+        state = self.vreset(jax.random.split(jax.random.PRNGKey(1), B))
+        random_states = [state]
+        for t in range(T):
+            state = self.vstep(state, jnp.asarray(rand[t]))
+            random_states.append(state)
+        self.random_states = random_states
 
 
 @functools.lru_cache(maxsize=None)

@@ -100,6 +100,13 @@ def test_contract_shapes_nan_and_single_trace(physics):
     lay = obs_lib.obs_layout()
     a, b = lay["object_pos"]
     assert np.all(r.obs["observation"][..., a:b] == 0)
+    # the fully random episode: finite, shaped, done at the end
+    for st in r.random_states:
+        for v in jax.tree.leaves(st.obs) + [st.reward]:
+            assert np.all(np.isfinite(np.asarray(v)))
+        assert st.obs["observation"].shape == (B, 2, env.obs_size)
+    assert np.all(np.asarray(r.random_states[-1].done) == 1.0)
+    assert np.all(np.asarray(r.random_states[-1].metrics["physics_ok"]) == 1.0)
     assert r.trace_count == 1
 
 
