@@ -1,9 +1,22 @@
-"""Throughput measurements used by ``experiments/benchmark.py`` (figures in docs/BENCHMARKS.md)."""
+"""Throughput measurements used by ``experiments/benchmark.py`` (figures in docs/BENCHMARKS.md).
+
+- :func:`env_throughput`: env-only physics and control steps/s (vmapped reset + ``lax.scan``).
+- :func:`train_throughput`: the compiled ``train_epoch`` of ``make_train_fns`` with a task preset:
+  env steps/s, updates/s, compile time, time of the rollout part of a cycle, wall and CPU time.
+- :func:`contacts_per_step`: active contacts per physics state over scripted episodes (C engine:
+  ``data.ncon`` after ``mj_forward`` on a plain ``MjData``; MJX: contacts with
+  ``dist < includemargin`` in ``mjx.Data``).
+- :func:`memory`: peak host RSS and device memory statistics (when the backend reports them).
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import platform
+import resource
 import time
+from typing import Optional
 
 import jax
 import jax.numpy as jnp
@@ -13,9 +26,34 @@ import numpy as np
 def machine_description() -> str:
     devs = jax.devices()
     kind = devs[0].device_kind if devs else "?"
-    import os
     return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
             f"jax backend {jax.default_backend()} ({len(devs)} x {kind})")
+
+
+def load() -> float:
+    """1-minute load average of the host (the machine may be shared)."""
+    try:
+        return float(os.getloadavg()[0])
+    except OSError:  # pragma: no cover
+        return float("nan")
+
+
+def memory() -> dict:
+    """Peak host RSS of this process so far (MB) and device memory stats of device 0."""
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KB on Linux
+    out = {"host_peak_rss_mb": rss / 1024.0}
+    try:
+        stats = jax.devices()[0].memory_stats()
+    except Exception:  # noqa: BLE001 (backends without stats)
+        stats = None
+    if stats:
+        out["device_peak_mb"] = stats.get("peak_bytes_in_use", 0) / 2**20
+        out["device_in_use_mb"] = stats.get("bytes_in_use", 0) / 2**20
+        if "bytes_limit" in stats:
+            out["device_limit_mb"] = stats["bytes_limit"] / 2**20
+    else:
+        out["device_peak_mb"] = None
+    return out
 
 
 def env_throughput(env, num_envs: int, n_steps: int | None = None, repeats: int = 3,
@@ -59,3 +97,157 @@ def env_throughput(env, num_envs: int, n_steps: int | None = None, repeats: int 
         "seconds_per_run": best,
         "physics_ok": float(ok),
     }
+
+
+def train_throughput(env, cfg, repeats: int = 2, rollout_split: bool = True) -> dict:
+    """Speed of the compiled ``train_epoch`` for ``cfg`` (typically a task preset with a reduced
+    ``n_cycles``).
+
+    compile_s: ``train_epoch.lower(state).compile()``. One untimed warm-up epoch, then
+    ``repeats`` timed epochs (median): env steps/s = n_cycles * num_envs * T / epoch time,
+    updates/s = n_cycles * n_batches / epoch time; cpu_s_per_cycle is the process CPU time
+    (user + system, all threads), less sensitive than wall time to other load on a shared
+    machine. rollout_split: also time the exploration rollout of one cycle alone (its own
+    compiled program) to split a cycle into rollout and the rest (insert, normalizer, updates).
+    """
+    from daddpg_jax.train import make_train_fns
+
+    T = int(env.episode_length)
+    fns = make_train_fns(env, cfg)
+    state = fns.init()
+    jax.block_until_ready(state)
+    t0 = time.perf_counter()
+    epoch = fns.train_epoch.lower(state).compile()
+    compile_s = time.perf_counter() - t0
+    state, m = epoch(state)
+    jax.block_until_ready(state)
+    walls, cpus = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        state, m = epoch(state)
+        jax.block_until_ready((state, m))
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    wall = float(np.median(walls))
+    cpu = float(np.median(cpus))
+    out = {
+        "task": env.task_name, "physics": env.physics, "num_envs": cfg.num_envs,
+        "num_devices": fns.num_devices, "batch_size": cfg.batch_size, "n_batches": cfg.n_batches,
+        "n_cycles": cfg.n_cycles, "buffer_episodes": fns.capacity, "hidden": list(cfg.hidden),
+        "compile_s": compile_s, "epoch_s": wall, "cycle_s": wall / cfg.n_cycles,
+        "cpu_s_per_cycle": cpu / cfg.n_cycles,
+        "env_steps_per_s": cfg.n_cycles * cfg.num_envs * T / wall,
+        "updates_per_s": cfg.n_cycles * cfg.n_batches / wall,
+        "finite": not bool(np.any(np.asarray(m["nonfinite"]))),
+    }
+    if rollout_split:
+        key = jax.random.PRNGKey(1)
+        jax.block_until_ready(fns.rollout(state, key, cfg.num_envs, True))
+        times = []
+        for i in range(max(repeats, 3)):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fns.rollout(state, jax.random.fold_in(key, i), cfg.num_envs, True))
+            times.append(time.perf_counter() - t0)
+        out["rollout_s_per_cycle"] = float(np.median(times))
+        out["rollout_share"] = out["rollout_s_per_cycle"] / out["cycle_s"]
+    out.update(memory())
+    return out
+
+
+def _has_contacts(mj_model) -> bool:
+    if mj_model.npair > 0:
+        return True
+    return bool(np.any((mj_model.geom_contype != 0) | (mj_model.geom_conaffinity != 0)))
+
+
+def contacts_per_step(env, num_envs: int = 8, steps: Optional[int] = None, seed: int = 0,
+                      policy: str = "scripted") -> dict:
+    """Active contacts per control step over ``num_envs`` episodes.
+
+    policy: 'scripted' (the task's controller in ``mjx_envs.scripted``, which grasps/pushes, so
+    contacts happen) or 'random' (uniform actions). C engine: the episode is rolled out with the
+    env, then each (env, step) state is put into a plain ``MjData`` (qpos, qvel, mocap) and
+    ``mj_forward`` gives ``data.ncon`` (contacts within the pair margins). MJX: the count of
+    ``contact.dist < contact.includemargin`` in the ``mjx.Data`` after each step, in the
+    compiled rollout. Scenes without collision pairs report 0 without rolling out.
+    """
+    import mujoco
+
+    T = int(steps or env.episode_length)
+    base = {"task": env.task_name, "physics": env.physics, "num_envs": num_envs, "steps": T,
+            "policy": policy}
+    if not _has_contacts(env.mj_model):
+        return dict(base, contacts_mean=0.0, contacts_max=0, contact_pairs=0)
+    if policy == "scripted":
+        from mjx_envs import scripted
+
+        act_fn = scripted.get_policy(env.task_name)
+    else:
+        act_fn = None
+    is_mjx = env.physics == "mjx"
+
+    def count(data):
+        if not is_mjx:
+            return jnp.zeros((), jnp.int32)
+        impl = getattr(data, "_impl", data)
+        c = impl.contact
+        return jnp.sum(c.dist < c.includemargin).astype(jnp.int32)
+
+    def run(key):
+        k_reset, k_act = jax.random.split(key)
+        s = jax.vmap(env.reset)(jax.random.split(k_reset, num_envs))
+
+        def body(s, k):
+            if act_fn is None:
+                a = jax.random.uniform(k, (num_envs, env.action_size), jnp.float32, -1, 1)
+            else:
+                a = act_fn(s.obs, env.config.max_delta)
+            s = jax.vmap(env.step)(s, a)
+            b = env.backend
+            return s, (b.qpos(s.data), s.data.qvel, b.mocap_pos(s.data), jax.vmap(count)(s.data))
+
+        _, out = jax.lax.scan(body, s, jax.random.split(k_act, T))
+        return out
+
+    qpos, qvel, mocap, ncon = jax.device_get(jax.jit(run)(jax.random.PRNGKey(seed)))
+    if not is_mjx:
+        m = env.mj_model
+        d = mujoco.MjData(m)
+        ncon = np.zeros(qpos.shape[:2], np.int32)
+        for t in range(qpos.shape[0]):
+            for i in range(qpos.shape[1]):
+                mujoco.mj_resetData(m, d)
+                d.qpos[:] = qpos[t, i]
+                d.qvel[:] = qvel[t, i]
+                d.mocap_pos[: mocap.shape[2]] = mocap[t, i]
+                mujoco.mj_forward(m, d)
+                ncon[t, i] = d.ncon
+    ncon = np.asarray(ncon)
+    return dict(base, contacts_mean=float(ncon.mean()), contacts_max=int(ncon.max()),
+                contacts_mean_final=float(ncon[-1].mean()), contact_pairs=int(env.mj_model.npair))
+
+
+def parse_overrides(items, dataclass_type, what: str) -> dict:
+    """KEY=VALUE strings -> dict typed like the dataclass defaults (tuples: comma lists)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(dataclass_type)}
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"{what} expects KEY=VALUE, got {item!r}")
+        k, v = (x.strip() for x in item.split("=", 1))
+        k = k.replace("-", "_")
+        if k not in defaults:
+            raise ValueError(f"unknown {what} field {k!r}")
+        d = defaults[k]
+        if isinstance(d, bool):
+            out[k] = v.lower() in ("1", "true", "yes", "on")
+        elif isinstance(d, tuple):
+            kind = type(d[0]) if d and not isinstance(d[0], tuple) else float
+            out[k] = tuple(kind(p) for p in v.strip("()").split(",") if p.strip())
+        elif isinstance(d, int):
+            out[k] = int(float(v))
+        elif isinstance(d, float):
+            out[k] = float(v)
+        else:
+            out[k] = v
+    return out

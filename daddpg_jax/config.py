@@ -139,13 +139,29 @@ _TASK_DEFAULTS = {
 }
 
 
+# Accelerator presets (device="gpu"/"tpu"): MJX physics, ACCELERATOR_NUM_ENVS envs by default,
+# the same replay-ratio rule, and n_cycles chosen so that an epoch (cycles between evaluations
+# and checkpoints) holds about `epoch_env_steps` env steps whatever num_envs is: one epoch then
+# stays well inside a 10-minute device command and `--time-budget` + `--resume` chunk a run.
+# n_epochs is a budget in epochs (total env steps = n_epochs * epoch_env_steps). NOT measured on
+# an accelerator here: starting points, see docs/SCALING.md.
+ACCELERATOR_NUM_ENVS = 4096
+_ACCEL_TASK_DEFAULTS = {
+    "reach": dict(epoch_env_steps=400_000, n_epochs=10),
+    "push": dict(epoch_env_steps=1_000_000, n_epochs=40),
+    "pickup": dict(epoch_env_steps=1_000_000, n_epochs=80),
+    "pot": dict(epoch_env_steps=1_000_000, n_epochs=120),
+}
+DEVICES = ("cpu", "gpu", "tpu")
+
+
 def replay_ratio(n_batches: int, batch_size: int, num_envs: int, episode_length: int = 50) -> float:
     """Gradient samples per stored transition: n_batches * batch_size / (num_envs * T)."""
     return n_batches * batch_size / (num_envs * episode_length)
 
 
 def preset(task: str, num_envs: Optional[int] = None, episode_length: int = 50,
-           ratio: float = REPLAY_RATIO, max_batch: int = MAX_BATCH) -> dict:
+           ratio: float = REPLAY_RATIO, max_batch: int = MAX_BATCH, device: str = "cpu") -> dict:
     """Per-task overrides for `TrainConfig` at a given number of parallel envs.
 
     The replay ratio (gradient samples per stored transition)
@@ -160,11 +176,20 @@ def preset(task: str, num_envs: Optional[int] = None, episode_length: int = 50,
 
     num_envs=None picks 2 (the HER baselines' rollouts per worker; right for 2 CPU cores).
     Returns a dict to pass as `TrainConfig(**preset(...))` or `cfg.replace(**preset(...))`.
+
+    device="gpu" (or "tpu"): the accelerator preset: physics "mjx", num_envs=None picks
+    ACCELERATOR_NUM_ENVS (4096), the same batch/updates rule, and n_cycles =
+    round(epoch_env_steps / (num_envs * T)) (at least 1) so that an epoch holds about the same
+    number of env steps at any num_envs (reach 4e5, contact tasks 1e6); n_epochs is the task's
+    budget. Unmeasured starting points (no accelerator was available): docs/SCALING.md.
     """
     if task not in _TASK_DEFAULTS:
         raise ValueError(f"unknown task {task!r}; known: {sorted(_TASK_DEFAULTS)}")
+    if device not in DEVICES:
+        raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+    accel = device != "cpu"
     if num_envs is None:
-        num_envs = BASE_NUM_ENVS
+        num_envs = ACCELERATOR_NUM_ENVS if accel else BASE_NUM_ENVS
     num_envs = int(num_envs)
     if num_envs < 1:
         raise ValueError("num_envs must be >= 1")
@@ -177,4 +202,8 @@ def preset(task: str, num_envs: Optional[int] = None, episode_length: int = 50,
     out = dict(task=task, num_envs=num_envs, batch_size=batch, n_batches=n_batches,
                buffer_size=buffer_size)
     out.update(_TASK_DEFAULTS[task])
+    if accel:
+        a = _ACCEL_TASK_DEFAULTS[task]
+        out.update(physics="mjx", n_epochs=a["n_epochs"],
+                   n_cycles=max(1, int(round(a["epoch_env_steps"] / (num_envs * episode_length)))))
     return out
