@@ -25,6 +25,7 @@ Facts the C backend handles (mujoco 4.0.0):
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
 from typing import Any
@@ -88,6 +89,20 @@ class MjxBackend:
 
 # ------------------------------------------------------------------------------- C engine --
 
+_POOLS: dict = {}  # nthread -> mujoco.rollout.Rollout shared by every C backend of the process
+_POOL_LOCK = threading.Lock()
+
+
+def _rollout_pool(nthread: int):
+    from mujoco import rollout
+
+    if nthread not in _POOLS:
+        pool = rollout.Rollout(nthread=nthread)
+        atexit.register(pool.close)
+        _POOLS[nthread] = pool
+    return _POOLS[nthread]
+
+
 
 @struct.dataclass
 class CData:
@@ -136,6 +151,16 @@ class CBackend:
         self._ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS)
         self._dt = float(model.opt.timestep)
         self.frozen_count = 0  # envs found frozen by the engine (host-side counter)
+        # Fast path of _host_step: our own persistent pool called with skip_checks (no shape
+        # inference, tiling or output allocation inside rollout) on inputs we lay out here.
+        self._models: list = []
+        i, k = self._off["mjSTATE_QPOS"]
+        self._sl_qpos = slice(i, i + k)
+        i, k = self._off["mjSTATE_QVEL"]
+        self._sl_qvel = slice(i, i + k)
+        i, k = self._off["mjSTATE_ACT"]
+        self._sl_act = slice(i, i + k)
+        self._i_time = self._off["mjSTATE_TIME"][0]
 
     # -- host functions (NumPy, run inside pure_callback) -------------------------------------
 
@@ -170,31 +195,49 @@ class CBackend:
                 out[b] = d.sensordata
         return out.reshape(lead + (self.ns,))
 
+    def _run_rollout(self, state, control, n):
+        """``rollout`` of n envs for n_substeps from full-physics states ``state`` [n, nstate]
+        under ``control`` [n, n_substeps, nu + 3 nmocap]; returns (states, sensordata) of every
+        substep. Our own persistent pool with skip_checks: the inputs are laid out by the caller
+        exactly as rollout expects (C-contiguous float64), outputs preallocated here."""
+        if len(self._models) != n:
+            self._models = [self.mj_model] * n
+        st = np.empty((n, self.n_substeps, self.nstate), np.float64)
+        sens = np.empty((n, self.n_substeps, self.ns), np.float64)
+        with _POOL_LOCK:
+            pool = _rollout_pool(len(self._datas) if len(self._datas) > 1 else 0)
+            pool.rollout(self._models, self._datas, state, control, control_spec=self._ctrl_spec,
+                         skip_checks=True, nstep=self.n_substeps, state=st, sensordata=sens)
+        return st, sens
+
     def _host_step(self, time, qpos, qvel, act, ctrl, mocap_pos):
         lead = qpos.shape[:-1]
         n = int(np.prod(lead)) if lead else 1
         time = np.asarray(time, np.float64).reshape(n)
-        state = self._pack(time, np.asarray(qpos).reshape(n, self.nq),
-                           np.asarray(qvel).reshape(n, self.nv),
-                           np.asarray(act).reshape(n, self.na))
-        control = np.concatenate(
-            [np.asarray(ctrl, np.float64).reshape(n, self.nu),
-             np.asarray(mocap_pos, np.float64).reshape(n, self.nmocap * 3)], axis=-1)
-        control = np.repeat(control[:, None, :], self.n_substeps, axis=1)
+        # full-physics state: time, qpos, qvel, act (other components have size 0 here; any
+        # that did not would stay zero as in _pack)
+        state = np.zeros((n, self.nstate), np.float64)
+        state[:, self._i_time] = time
+        state[:, self._sl_qpos] = np.asarray(qpos).reshape(n, self.nq)
+        state[:, self._sl_qvel] = np.asarray(qvel).reshape(n, self.nv)
+        if self.na:
+            state[:, self._sl_act] = np.asarray(act).reshape(n, self.na)
+        # the same control (finger targets, mocap targets) for every substep, written in place
+        control = np.empty((n, self.n_substeps, self.nu + 3 * self.nmocap), np.float64)
+        control[:, :, : self.nu] = np.asarray(ctrl).reshape(n, 1, self.nu)
+        control[:, :, self.nu:] = np.asarray(mocap_pos).reshape(n, 1, 3 * self.nmocap)
         with self._lock:
-            st, sens = self._rollout.rollout(
-                self.mj_model, self._datas, state, control, control_spec=self._ctrl_spec,
-                nstep=self.n_substeps, persistent_pool=True)
+            st, sens = self._run_rollout(state, control, n)
         last = st[:, -1]
-        new_time = self._unpack(last, "mjSTATE_TIME")[:, 0]
+        new_time = last[:, self._i_time]
         expected = time + self.n_substeps * self._dt
         ok = (np.abs(new_time - expected) < 0.5 * self._dt).astype(np.float32)
         self.frozen_count += int(n - ok.sum())
         f32 = lambda a, k: a.astype(np.float32).reshape(lead + (k,))  # noqa: E731
         return (new_time.astype(np.float32).reshape(lead),
-                f32(self._unpack(last, "mjSTATE_QPOS"), self.nq),
-                f32(self._unpack(last, "mjSTATE_QVEL"), self.nv),
-                f32(self._unpack(last, "mjSTATE_ACT"), self.na),
+                f32(last[:, self._sl_qpos], self.nq),
+                f32(last[:, self._sl_qvel], self.nv),
+                f32(last[:, self._sl_act], self.na),
                 f32(sens[:, -1], self.ns),
                 ok.reshape(lead))
 
