@@ -25,6 +25,7 @@ import csv
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Optional
 
@@ -248,7 +249,10 @@ def write_video(policy: Policy, traj: dict, path: str, n_episodes: int = 3, widt
         imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
         return path
     try:
-        imageio.mimsave(path, frames, fps=fps, macro_block_size=8)
+        with warnings.catch_warnings():
+            # imageio-ffmpeg starts ffmpeg with subprocess: Python warns about fork + JAX threads
+            warnings.simplefilter("ignore", RuntimeWarning)
+            imageio.mimsave(path, frames, fps=fps, macro_block_size=8)
         return path
     except Exception:  # noqa: BLE001 (no ffmpeg backend)
         alt = os.path.splitext(path)[0] + ".gif"

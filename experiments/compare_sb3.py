@@ -23,8 +23,8 @@ and has no random-action probability or action L2 penalty. torch runs with one i
 (--torch-threads): with two OpenMP threads on a busy 2-core machine its small matmuls were ~60x
 slower (threads spin-waiting for a core). Likewise our trainer runs with XLA's CPU runtime on
 one thread (XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"),
-which trained reach ~2.5x faster than the default on the same busy machine; the methods
-single_mt / daddpg_mt run ours with XLA's defaults.
+which trained reach ~2.7x faster than XLA's default at load ~6 on 2 cores (about equal at load
+~3-4); the methods single_mt / daddpg_mt run ours with XLA's defaults.
 
 Outputs in --out: results.json, results.md, ours_<algo>/ (a normal run directory) and
 sb3_ddpg_her/metrics.csv (same columns as ours for env_steps, wall_time and the test rates), so
