@@ -173,3 +173,23 @@ def test_two_device_reach_c_engine_callback_per_shard():
     assert 2 in out["sizes"] and out["calls"] >= 2 * 10, out
     assert out["finite"] and not out["nonfinite"] and out["frozen"] == 0
     assert out["buffer"] == 4
+
+
+def test_accelerator_preset_keeps_ratio_and_epoch_size():
+    from daddpg_jax.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
+
+    assert preset("reach") == preset("reach", device="cpu")          # CPU preset unchanged
+    p = preset("push", device="gpu")
+    assert p["num_envs"] == 4096 and p["physics"] == "mjx" and p["batch_size"] == 8192
+    assert p["n_batches"] == 2560 and p["n_cycles"] == 5 and p["n_epochs"] == 40
+    for task, steps in (("reach", 4e5), ("push", 1e6), ("pickup", 1e6), ("pot", 1e6)):
+        for n in (256, 1024, 4096, 16384):
+            q = preset(task, n, device="gpu")
+            assert REPLAY_RATIO <= replay_ratio(q["n_batches"], q["batch_size"], n) < REPLAY_RATIO * 1.1
+            epoch = q["n_cycles"] * n * 50
+            assert q["n_cycles"] == 1 or 0.5 * steps <= epoch <= 1.5 * steps, (task, n, q)
+            TrainConfig(**q)
+    with pytest.raises(ValueError):
+        preset("reach", device="fpga")
+    with pytest.raises(ValueError):
+        TrainConfig(num_devices=-1)
