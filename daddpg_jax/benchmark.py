@@ -154,6 +154,49 @@ def train_throughput(env, cfg, repeats: int = 2, rollout_split: bool = True) -> 
     return out
 
 
+def op_profile(env, cfg, logdir: str, top: int = 12) -> dict:
+    """XLA op time of one ``train_epoch`` (after a warm-up epoch) from a ``jax.profiler`` trace.
+
+    Aggregates the trace's executor events by op name (numeric suffixes dropped; e.g. all
+    ``ynn_fusion.N`` matmul fusions together), so the share of matmuls, optimizer element-wise
+    fusions, gathers, copies and the physics ``pure_callback`` can be read off. Returns
+    {"total_ms", "wall_s", "ops": [[name, ms, share, count], ...]} (``top`` largest).
+    """
+    import collections
+    import glob
+    import re
+
+    from jax._src.lib import _profile_data
+    from daddpg_jax.train import make_train_fns
+
+    fns = make_train_fns(env, cfg)
+    state = fns.init()
+    state, _ = fns.train_epoch(state)
+    jax.block_until_ready(state)
+    jax.profiler.start_trace(logdir)
+    t0 = time.perf_counter()
+    state, m = fns.train_epoch(state)
+    jax.block_until_ready((state, m))
+    wall = time.perf_counter() - t0
+    jax.profiler.stop_trace()
+    path = sorted(glob.glob(os.path.join(logdir, "**", "*.xplane.pb"), recursive=True))[-1]
+    agg, cnt = collections.Counter(), collections.Counter()
+    for plane in _profile_data.ProfileData.from_file(path).planes:
+        for line in plane.lines:
+            if "Eigen" not in line.name and "XLA" not in line.name:
+                continue
+            for ev in line.events:
+                name = ev.name
+                if name.startswith(("ThunkExecutor", "end: ")) or "Await" in name:
+                    continue
+                name = re.sub(r"\.\d+$", "", name)
+                agg[name] += ev.duration_ns
+                cnt[name] += 1
+    total = float(sum(agg.values()))
+    ops = [[k, v / 1e6, v / total if total else 0.0, cnt[k]] for k, v in agg.most_common(top)]
+    return {"total_ms": total / 1e6, "wall_s": wall, "ops": ops}
+
+
 def _has_contacts(mj_model) -> bool:
     if mj_model.npair > 0:
         return True

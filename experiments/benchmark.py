@@ -54,6 +54,9 @@ def main(argv=None):
     p.add_argument("--contacts", choices=["auto", "on", "off"], default="auto",
                    help="contacts per step in env mode: auto = for tasks with contact pairs")
     p.add_argument("--contact-envs", type=int, default=8, help="scripted episodes for contact counts")
+    p.add_argument("--profile", action="store_true",
+                   help="with --mode train/all: also trace one epoch of the first task/engine/size "
+                        "with jax.profiler and print the XLA op-time breakdown")
     p.add_argument("--out", default="benchmark.json", help="JSON file for the results")
     args = p.parse_args(argv)
 
@@ -129,10 +132,27 @@ def main(argv=None):
                           f"{r['cpu_s_per_cycle']:9.2f} {r['host_peak_rss_mb']:8.0f} "
                           f"{'-' if dev_mb is None else f'{dev_mb:8.0f}':>8s}", flush=True)
 
+    profile = None
+    if args.profile and args.mode in ("train", "all"):
+        import tempfile
+
+        task, physics, n = args.tasks[0], train_physics[0], train_sizes[0]
+        env = mjx_envs.make(task, physics=physics, **env_over)
+        over = preset(task, n, episode_length=env.episode_length, device=device)
+        over.update(physics=physics, n_cycles=args.n_cycles)
+        over.update(sets)
+        profile = bm.op_profile(env, TrainConfig(**over), tempfile.mkdtemp(prefix="daddpg_prof_"))
+        profile.update(task=task, physics=physics, num_envs=n)
+        print(f"\n[profile] {task} {physics} {n} envs: one epoch of {args.n_cycles} cycles, "
+              f"{profile['wall_s']:.2f} s wall, {profile['total_ms']:.0f} ms of XLA op time")
+        for name, ms, share, count in profile["ops"]:
+            print(f"  {name:32s} {ms:9.1f} ms {100 * share:5.1f}% {count:7d} calls")
+
     out = {"machine": machine, "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
            "time": time.strftime("%Y-%m-%d %H:%M:%S"), "load_start": load0, "load_end": bm.load(),
            "jax": jax.__version__, "devices": len(jax.devices()), "mode": args.mode,
            "results": env_rows, "contacts": contact_rows, "train": train_rows,
+           "profile": profile,
            "train_settings": {"device_preset": device, "n_cycles": args.n_cycles,
                               "overrides": {k: list(v) if isinstance(v, tuple) else v
                                             for k, v in sets.items()},

@@ -254,20 +254,32 @@ class CBackend:
                      act=jnp.zeros((self.na,), jnp.float32), mocap_pos=mocap_pos,
                      sensordata=sens, ok=jnp.ones((), jnp.float32))
 
+    def _host_step_packed(self, x):
+        """_host_step on one packed float32 array [..., 1 + nq + nv + na + nu + 3 nmocap]
+        (time, qpos, qvel, act, ctrl, mocap) -> [..., 1 + nq + nv + na + ns + 1] (time, qpos,
+        qvel, act, sensordata, ok): one argument and one result per callback instead of six of
+        each, which halves JAX's per-call transfer overhead at small batches."""
+        x = np.asarray(x)
+        lead = x.shape[:-1]
+        parts = np.split(x, np.cumsum([1, self.nq, self.nv, self.na, self.nu]), axis=-1)
+        time, qpos, qvel, act, ctrl, mocap = parts
+        out = self._host_step(time[..., 0], qpos, qvel, act, ctrl,
+                              mocap.reshape(lead + (self.nmocap, 3)))
+        t, q, v, a, sens, ok = out
+        return np.concatenate([t[..., None], q, v, a, sens, ok[..., None]], axis=-1)
+
     def step(self, data: CData, ctrl, mocap_pos):
         ctrl = jnp.asarray(ctrl, jnp.float32)
         mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
-        shapes = (jax.ShapeDtypeStruct((), jnp.float32),
-                  jax.ShapeDtypeStruct((self.nq,), jnp.float32),
-                  jax.ShapeDtypeStruct((self.nv,), jnp.float32),
-                  jax.ShapeDtypeStruct((self.na,), jnp.float32),
-                  jax.ShapeDtypeStruct((self.ns,), jnp.float32),
-                  jax.ShapeDtypeStruct((), jnp.float32))
-        time, qpos, qvel, act, sens, ok = jax.pure_callback(
-            self._host_step, shapes, data.time, data.qpos, data.qvel, data.act, ctrl, mocap_pos,
-            vmap_method="broadcast_all")
-        return CData(time=time, qpos=qpos, qvel=qvel, act=act, mocap_pos=mocap_pos,
-                     sensordata=sens, ok=data.ok * ok)
+        x = jnp.concatenate([data.time[None], data.qpos, data.qvel, data.act, ctrl,
+                             mocap_pos.reshape(-1)])
+        n_out = 1 + self.nq + self.nv + self.na + self.ns + 1
+        y = jax.pure_callback(self._host_step_packed, jax.ShapeDtypeStruct((n_out,), jnp.float32),
+                              x, vmap_method="broadcast_all")
+        time, qpos, qvel, act, sens, ok = jnp.split(
+            y, np.cumsum([1, self.nq, self.nv, self.na, self.ns]))
+        return CData(time=time[0], qpos=qpos, qvel=qvel, act=act, mocap_pos=mocap_pos,
+                     sensordata=sens, ok=data.ok * ok[0])
 
     @staticmethod
     def sensordata(data: CData):
