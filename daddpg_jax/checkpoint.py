@@ -53,6 +53,28 @@ def save(run_dir, state, step: int, save_buffer: bool = False, keep: int = 3) ->
     return os.path.join(checkpoint_dir(run_dir), str(int(step)))
 
 
+class RunDirError(FileNotFoundError):
+    """A directory is not a run directory, or lacks the asked-for checkpoint."""
+
+
+def check_run_dir(run_dir, step: Optional[int] = None) -> list:
+    """Checks that ``run_dir`` is a training run with checkpoint ``step`` (default: any) and
+    returns its checkpoint steps; raises :class:`RunDirError` with a message for the user."""
+    run_dir = os.fspath(run_dir)
+    if not os.path.isdir(run_dir):
+        raise RunDirError(f"run directory {run_dir!r} does not exist")
+    if not os.path.exists(os.path.join(run_dir, "config.json")):
+        raise RunDirError(f"{run_dir!r} has no config.json: not a training run directory "
+                          "(written by experiments/run.py)")
+    steps = all_steps(run_dir)
+    if not steps:
+        raise RunDirError(f"run {run_dir!r} has no checkpoint under {checkpoint_dir(run_dir)} "
+                          "(a run writes one at the end of each epoch)")
+    if step is not None and int(step) not in steps:
+        raise RunDirError(f"run {run_dir!r} has no checkpoint {step}; available: {steps}")
+    return steps
+
+
 def all_steps(run_dir):
     if not os.path.isdir(checkpoint_dir(run_dir)):
         return []

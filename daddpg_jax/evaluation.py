@@ -78,15 +78,10 @@ def load_policy(run_dir: str, step: Optional[int] = None, physics: Optional[str]
     from daddpg_jax.runner import make_env
     from daddpg_jax.train import make_train_fns
 
-    if not os.path.exists(os.path.join(run_dir, "config.json")):
-        raise NoCheckpointError(f"{run_dir}: no config.json; is this a run directory "
-                                "(written by experiments/run.py)?")
-    steps = ckpt.all_steps(run_dir)
-    if not steps:
-        raise NoCheckpointError(f"{run_dir}: no checkpoint under {ckpt.checkpoint_dir(run_dir)} "
-                                "(a run writes one at the end of each epoch)")
-    if step is not None and int(step) not in steps:
-        raise NoCheckpointError(f"{run_dir}: no checkpoint {step}; available: {steps}")
+    try:
+        ckpt.check_run_dir(run_dir, step)
+    except ckpt.RunDirError as e:
+        raise NoCheckpointError(str(e)) from None
     cfg, payload = ckpt.load_config(run_dir)
     if physics is not None:
         cfg = cfg.replace(physics=physics)

@@ -159,16 +159,10 @@ def export_run(run_dir, out, step: Optional[int] = None) -> str:
     from daddpg_jax.train import make_train_fns
 
     run_dir = os.fspath(run_dir)
-    if not os.path.isdir(run_dir):
-        raise ExportError(f"run directory {run_dir!r} does not exist")
-    if not os.path.exists(os.path.join(run_dir, "config.json")):
-        raise ExportError(f"{run_dir!r} has no config.json: not a training run directory")
-    steps = ckpt.all_steps(run_dir)
-    if not steps:
-        raise ExportError(f"run {run_dir!r} has no checkpoint under {ckpt.checkpoint_dir(run_dir)} "
-                          "(train at least one epoch first)")
-    if step is not None and int(step) not in steps:
-        raise ExportError(f"run {run_dir!r} has no checkpoint {step}; available: {steps}")
+    try:
+        ckpt.check_run_dir(run_dir, step)
+    except ckpt.RunDirError as e:
+        raise ExportError(str(e)) from None
     cfg, payload = ckpt.load_config(run_dir)
     env = make_env(cfg, payload.get("env_overrides") or {})
     fns = make_train_fns(env, cfg)
