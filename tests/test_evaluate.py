@@ -116,6 +116,9 @@ def test_video(run_dir, tmp_path):
     import imageio.v2 as imageio
 
     frames = imageio.mimread(written, memtest=False)
-    assert len(frames) == 2 * (50 + 1 + 12)
+    if written.endswith(".mp4"):
+        assert len(frames) == 2 * (50 + 1 + 12)
+    else:  # GIF writers merge identical consecutive frames (held end frames, still arms)
+        assert 50 < len(frames) <= 2 * (50 + 1 + 12)
     assert np.asarray(frames[0]).shape[:2] == (120, 160)
     assert np.asarray(frames[0]).std() > 5  # not a blank image
