@@ -72,6 +72,12 @@ def run_ours(args, method: str) -> dict:
     cfg = TrainConfig(**preset(args.task)).replace(
         algo=algo, seed=args.seed, n_epochs=100_000, n_test_episodes=args.eval_episodes,
         eval_seed=args.eval_seed, physics="c", keep_checkpoints=1)
+    if args.num_envs is not None:
+        cfg = cfg.replace(num_envs=args.num_envs)
+    if args.updates_per_cycle is not None:
+        cfg = cfg.replace(n_batches=args.updates_per_cycle)
+    if args.cycles_per_epoch is not None:
+        cfg = cfg.replace(n_cycles=args.cycles_per_epoch)
     run_dir = os.path.join(args.out, f"ours_{method}")
     rows = []
 
@@ -142,19 +148,21 @@ def run_sb3(args) -> dict:
 
     torch.set_num_threads(args.torch_threads)
     env_id = ge.ENV_IDS[args.task]
-    venv = DummyVecEnv([lambda: Monitor(gym.make(env_id))])
+    n_envs, train_freq, grad_steps = sb3_schedule(args)
+    venv = DummyVecEnv([lambda: Monitor(gym.make(env_id)) for _ in range(n_envs)])
     venv = VecNormalize(venv, norm_obs=True, norm_reward=False, clip_obs=5.0, gamma=0.98)
     venv.seed(args.seed)
     n_act = venv.action_space.shape[0]
     model = DDPG(
         "MultiInputPolicy", venv, learning_rate=1e-3, buffer_size=1_000_000, learning_starts=100,
-        batch_size=256, tau=0.005, gamma=0.98, train_freq=(1, "episode"),
-        gradient_steps=args.sb3_gradient_steps,
+        batch_size=256, tau=0.005, gamma=0.98, train_freq=train_freq,
+        gradient_steps=grad_steps,
         action_noise=NormalActionNoise(np.zeros(n_act), 0.2 * np.ones(n_act)),
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
         policy_kwargs=dict(net_arch=[256, 256, 256]), seed=args.seed, device="cpu", verbose=0)
     evaluator = GymEvaluator(env_id, args.eval_episodes, args.eval_seed)
+    eval_every = sb3_eval_every(args)
     out_dir = os.path.join(args.out, SB3_DIR)
     os.makedirs(out_dir, exist_ok=True)
     curve = []
@@ -167,12 +175,12 @@ def run_sb3(args) -> dict:
         def _on_training_start(self):
             self.t0 = time.perf_counter()
             self.paused = 0.0
-            self.next_eval = args.eval_every
+            self.next_eval = eval_every
 
         def _on_step(self) -> bool:
             if self.num_timesteps < self.next_eval:
                 return True
-            self.next_eval += args.eval_every
+            self.next_eval += eval_every
             t_eval = time.perf_counter()
             train_time = t_eval - self.t0 - self.paused
             m = evaluator(predict)
@@ -201,11 +209,37 @@ def run_sb3(args) -> dict:
                                           "test_arm_contact_rate")} for r in curve],
                 settings=dict(sb3=stable_baselines3.__version__, torch=torch.__version__,
                               torch_threads=torch.get_num_threads(), net_arch=[256, 256, 256],
-                              batch_size=256, gradient_steps_per_episode=args.sb3_gradient_steps,
+                              batch_size=256, n_envs=n_envs, train_freq=list(train_freq),
+                              gradient_steps=grad_steps,
                               tau=0.005, gamma=0.98, action_noise=0.2, learning_starts=100,
                               her=dict(n_sampled_goal=4, goal_selection_strategy="future"),
                               vec_normalize=dict(norm_obs=True, clip_obs=5.0),
-                              eval_every_env_steps=args.eval_every))
+                              eval_every_env_steps=eval_every))
+
+
+def sb3_schedule(args):
+    """(n_envs, train_freq, gradient_steps) of SB3.
+
+    Without --num-envs: one env and --sb3-gradient-steps after every 50-step episode (20 = the
+    replay ratio of our 2-env preset). With --num-envs N: N envs stepped together and, after
+    every 50 steps of all of them (N x 50 transitions = one cycle of ours), as many gradient
+    steps as ours does per cycle (--updates-per-cycle, default the preset's 40)."""
+    if args.num_envs is None:
+        return 1, (1, "episode"), args.sb3_gradient_steps
+    from daddpg_jax.config import preset
+
+    updates = args.updates_per_cycle or preset(args.task)["n_batches"]
+    return args.num_envs, (50, "step"), updates
+
+
+def sb3_eval_every(args) -> int:
+    """SB3's env steps between evaluations: --eval-every, or with --num-envs one epoch of ours."""
+    if args.num_envs is None:
+        return args.eval_every
+    from daddpg_jax.config import preset
+
+    cycles = args.cycles_per_epoch or preset(args.task)["n_cycles"]
+    return cycles * args.num_envs * 50
 
 
 # ------------------------------------------------------------------------------ report ------
@@ -270,6 +304,16 @@ def build_parser():
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--sb3-gradient-steps", type=int, default=20,
                    help="SB3 gradient steps after each 50-step episode (20 = our replay ratio)")
+    p.add_argument("--num-envs", type=int, default=None, metavar="N",
+                   help="parallel envs for every method (default: ours the preset's 2, SB3 one "
+                        "env); with N, SB3 steps N envs in a DummyVecEnv and makes "
+                        "--updates-per-cycle gradient steps after every 50 steps of all of them, "
+                        "the same schedule as ours, and is evaluated once per epoch of ours")
+    p.add_argument("--updates-per-cycle", type=int, default=None, metavar="U",
+                   help="gradient updates per cycle (N envs x 50 steps) for every method "
+                        "(default: the preset's 40); only with --num-envs for SB3")
+    p.add_argument("--cycles-per-epoch", type=int, default=None, metavar="C",
+                   help="ours: cycles between evaluations (default: the preset's, 20 on reach)")
     p.add_argument("--torch-threads", type=int, default=1,
                    help="torch intra-op threads for SB3 (default 1: on a busy 2-core machine two "
                         "OpenMP threads made a 256x256 matmul ~60x slower than one)")
@@ -290,6 +334,11 @@ def main(argv=None) -> int:
         return 0
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for flag in ("num_envs", "updates_per_cycle", "cycles_per_epoch"):
+        v = getattr(args, flag)
+        if v is not None and v < 1:
+            print(f"error: --{flag.replace('_', '-')} must be >= 1, got {v}", file=sys.stderr)
+            return 2
     bad = [m for m in methods if m not in METHODS]
     if bad:
         print(f"error: unknown method(s) {bad}; choose from {METHODS}", file=sys.stderr)
