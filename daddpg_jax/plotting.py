@@ -9,7 +9,7 @@ wall clock, arm-contact rate vs env steps (``experiments/plot.py``).
 from __future__ import annotations
 
 import os
-from typing import Iterable, Sequence
+from typing import Iterable, Optional, Sequence
 
 import numpy as np
 
@@ -60,6 +60,27 @@ def read_metrics(path: str) -> list[dict]:
     if not rows:
         raise ValueError(f"{csv_path} has no rows yet")
     return rows
+
+
+def truncate(rows: Sequence[dict], max_wall: Optional[float] = None,
+             max_env_steps: Optional[float] = None) -> list[dict]:
+    """The epochs of a run that ended within ``max_wall`` seconds of its wall clock and
+    ``max_env_steps`` env steps (None: no limit): a longer run cut to a shorter budget."""
+    return [r for r in rows
+            if (max_wall is None or float(r["wall_time"]) <= max_wall)
+            and (max_env_steps is None or float(r["env_steps"]) <= max_env_steps)]
+
+
+def run_config(path: str) -> dict:
+    """The ``config`` section of a run's config.json ({} when it has none)."""
+    import json
+
+    run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
+    try:
+        with open(os.path.join(run_dir, "config.json")) as f:
+            return dict(json.load(f)["config"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
 
 
 def run_label(path: str) -> str:

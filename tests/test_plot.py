@@ -81,3 +81,38 @@ def test_plot_runs_with_labels_and_single_run_curve(tmp_path):
     assert os.path.exists(plotting.plot_learning_curve(a, str(tmp_path / "one.png")))
     with pytest.raises(FileNotFoundError):
         plotting.read_metrics(str(tmp_path / "missing"))
+
+
+def test_truncate_to_a_budget():
+    rows = [dict(epoch=i + 1, env_steps=2000 * (i + 1), wall_time=10.0 * (i + 1)) for i in range(5)]
+    assert [r["epoch"] for r in plotting.truncate(rows, max_wall=30.0)] == [1, 2, 3]
+    assert [r["epoch"] for r in plotting.truncate(rows, max_env_steps=4000)] == [1, 2]
+    assert [r["epoch"] for r in plotting.truncate(rows, 45.0, 8000)] == [1, 2, 3, 4]
+    assert plotting.truncate(rows) == rows
+    assert plotting.truncate(rows, max_wall=5.0) == []
+
+
+def test_cli_budget_cut_and_table(tmp_path):
+    a = _fake_run(tmp_path / "a", [0.0, 0.6, 0.95, 0.2], 10.0)
+    b = _fake_run(tmp_path / "b", [0.1, 0.3, 0.4, 0.9, 1.0], 8.0, algo="single")
+    out, table = str(tmp_path / "cut.png"), str(tmp_path / "cut.csv")
+    plot = os.path.join(ROOT, "experiments", "plot.py")
+    r = subprocess.run([sys.executable, plot, a, b, "--max-wall", "32", "--table", table,
+                        "--out", out], capture_output=True, text=True, cwd=ROOT, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    _check_png(out)
+    with open(table, newline="") as f:
+        got = list(csv.DictReader(f))
+    assert [g["label"] for g in got] == ["reach/daddpg", "reach/single"]
+    # a: epochs at 10, 20, 30 s kept (the 40 s epoch is cut); b: 8, 16, 24, 32 s kept
+    assert got[0]["epochs"] == "3" and float(got[0]["final_test_success"]) == pytest.approx(0.95)
+    assert float(got[0]["env_steps_to_0.5"]) == 4000 and float(got[0]["wall_time_to_0.9"]) == 30.0
+    assert got[1]["epochs"] == "4" and float(got[1]["best_test_success"]) == pytest.approx(0.9)
+    assert float(got[1]["wall_time_to_0.9"]) == 32.0 and got[1]["algo"] == "single"
+    assert got[1]["run"] == b
+    bad = subprocess.run([sys.executable, plot, a, "--max-wall", "5", "--out", out],
+                         capture_output=True, text=True, cwd=ROOT, timeout=180)
+    assert bad.returncode == 2 and "budget" in bad.stderr
+    neg = subprocess.run([sys.executable, plot, a, "--max-wall", "0", "--out", out],
+                         capture_output=True, text=True, cwd=ROOT, timeout=180)
+    assert neg.returncode == 2 and "--max-wall must be > 0" in neg.stderr
