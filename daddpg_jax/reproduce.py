@@ -49,17 +49,17 @@ ABLATIONS = (
 
 
 def experiments(seeds: int, algos: Optional[Sequence[str]] = None, ablations: bool = False,
-                ablation_seeds: int = 1) -> list[tuple[Experiment, int]]:
-    """(experiment, seed) pairs: the main variant (or ``algos``) over ``seeds`` seeds, plus the
-    ablations over ``ablation_seeds`` seeds."""
+                ablation_seeds: int = 1, first_seed: int = 0) -> list[tuple[Experiment, int]]:
+    """(experiment, seed) pairs: the main variant (or ``algos``) over ``seeds`` seeds starting at
+    ``first_seed``, plus the ablations over ``ablation_seeds`` seeds from the same start."""
     out = []
     mains = [MAIN] if not algos else [Experiment(a, a, "future") for a in algos]
     for e in mains:
-        out += [(e, s) for s in range(seeds)]
+        out += [(e, s) for s in range(first_seed, first_seed + seeds)]
     if ablations:
         for e in ABLATIONS:
             if all(e.label != m.label for m in mains):
-                out += [(e, s) for s in range(ablation_seeds)]
+                out += [(e, s) for s in range(first_seed, first_seed + ablation_seeds)]
     return out
 
 
@@ -123,7 +123,8 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
 def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[str]] = None,
             ablations: bool = False, env_steps: int = 200_000, budget_minutes: float = 30.0,
             num_envs: Optional[int] = None, overrides: Optional[dict] = None,
-            env_overrides: Optional[dict] = None, log: Callable[[str], None] = print) -> dict:
+            env_overrides: Optional[dict] = None, log: Callable[[str], None] = print,
+            first_seed: int = 0) -> dict:
     """Runs the set and writes final.csv, curves.png, ablations.png and summary.json."""
     from daddpg_jax.plotting import plot_runs
 
@@ -131,7 +132,7 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[st
     os.makedirs(os.path.join(task_dir, "runs"), exist_ok=True)
     finals, groups = [], {}
     t0 = time.time()
-    for exp, seed in experiments(seeds, algos, ablations):
+    for exp, seed in experiments(seeds, algos, ablations, first_seed=first_seed):
         run_dir = os.path.join(task_dir, "runs", f"{exp.label}_s{seed}")
         rows = run_one(task, exp, seed, run_dir, env_steps, budget_minutes * 60.0, num_envs,
                        overrides, env_overrides, log)
@@ -146,7 +147,7 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[st
               title=f"{task}: {main_label} over {seeds} seed(s)")
     if len(groups) > 1:
         plot_runs(groups, os.path.join(task_dir, "ablations.png"), title=f"{task}: variants")
-    summary = {"task": task, "seeds": seeds, "ablations": ablations, "env_steps": env_steps,
+    summary = {"task": task, "seeds": seeds, "first_seed": first_seed, "ablations": ablations, "env_steps": env_steps,
                "budget_minutes": budget_minutes, "num_envs": num_envs,
                "overrides": overrides or {}, "env_overrides": env_overrides or {},
                "elapsed_s": round(time.time() - t0, 1), "final": finals}

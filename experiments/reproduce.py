@@ -31,6 +31,9 @@ def main(argv=None) -> int:
     p.add_argument("--task", required=True, choices=["reach", "push", "pickup", "pot"],
                    help="task to run")
     p.add_argument("--seeds", type=int, default=3, help="seeds of the main variant (default 3)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="first seed (default 0): runs seeds FIRST..FIRST+SEEDS-1, e.g. to add "
+                        "seeds to a set in another output directory or on another machine")
     p.add_argument("--algo", nargs="+", default=None,
                    choices=["daddpg", "maddpg", "ddpg", "single"],
                    help="main variant(s) to run over the seeds (default daddpg)")
@@ -49,6 +52,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.seeds < 1:
         p.error("--seeds must be >= 1")
+    if args.first_seed < 0:
+        p.error("--first-seed must be >= 0")
 
     import mjx_envs
     from daddpg_jax.cli import parse_overrides
@@ -63,7 +68,7 @@ def main(argv=None) -> int:
     summary = run_set(args.task, args.out, seeds=args.seeds, algos=args.algo,
                       ablations=args.ablations, env_steps=args.env_steps,
                       budget_minutes=args.budget_minutes, num_envs=args.num_envs,
-                      overrides=overrides, env_overrides=env_over)
+                      overrides=overrides, env_overrides=env_over, first_seed=args.first_seed)
     print(f"\n{'label':14s} {'seed':>4s} {'env steps':>10s} {'wall s':>8s} {'final':>6s} "
           f"{'best':>6s} {'steps→0.9':>10s} {'contact':>8s}")
     for r in summary["final"]:

@@ -17,6 +17,17 @@ def test_experiment_list():
     assert labels[:3] == [("daddpg", 0), ("daddpg", 1), ("daddpg", 2)]
     assert {e.label for e, _ in pairs[3:]} == {"maddpg", "ddpg", "single", "daddpg_noher"}
     assert [e.her for e, _ in pairs if e.label == "daddpg_noher"] == ["none"]
+    more = experiments(2, ablations=True, first_seed=1)
+    assert [(e.label, s) for e, s in more][:2] == [("daddpg", 1), ("daddpg", 2)]
+    assert {s for _, s in more[2:]} == {1}
+    assert [(e.label, s) for e, s in experiments(1, algos=["ddpg"], first_seed=4)] == [("ddpg", 4)]
+
+
+def test_cli_rejects_negative_first_seed():
+    res = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "reproduce.py"),
+                          "--task", "reach", "--first-seed", "-1"], capture_output=True,
+                         text=True, timeout=120, cwd=ROOT)
+    assert res.returncode == 2 and "--first-seed must be >= 0" in res.stderr
 
 
 def test_final_row_thresholds():
