@@ -1,4 +1,4 @@
-"""Learning curves of one or more runs: test success vs env steps, test success vs wall clock,
+r"""Learning curves of one or more runs: test success vs env steps, test success vs wall clock,
 and the arm-contact rate, as three panels (PNG).
 
 Examples

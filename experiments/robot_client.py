@@ -1,4 +1,4 @@
-"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
+r"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
 service every control period, through the safety layer, and reports the success rate.
 
 Examples
