@@ -23,6 +23,7 @@ from typing import Callable, Optional, Sequence
 
 from daddpg_jax import checkpoint as ckpt
 from daddpg_jax.config import TrainConfig, preset
+from daddpg_jax.levels import first_reaching, reaches  # noqa: F401  (re-exported)
 from daddpg_jax.runner import train
 
 FINAL_COLUMNS = (
@@ -61,13 +62,6 @@ def experiments(seeds: int, algos: Optional[Sequence[str]] = None, ablations: bo
             if all(e.label != m.label for m in mains):
                 out += [(e, s) for s in range(first_seed, first_seed + ablation_seeds)]
     return out
-
-
-def first_reaching(rows: Sequence[dict], level: float, key: str):
-    for r in rows:
-        if float(r["test_success_rate"]) >= level:
-            return float(r[key])
-    return math.nan
 
 
 def final_row(task: str, exp: Experiment, seed: int, rows: Sequence[dict]) -> dict:

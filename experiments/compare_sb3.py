@@ -44,6 +44,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+from daddpg_jax.levels import reaches  # noqa: E402  (success-level test, float32 tolerance)
 
 METHODS = ("single", "daddpg", "sb3", "single_mt", "daddpg_mt")
 DEFAULT_METHODS = ("single", "daddpg", "sb3")
@@ -85,7 +86,7 @@ def run_ours(args, method: str) -> dict:
         rows.append(row)
         print(f"[ours/{algo}] env_steps {row['env_steps']:>7,}  wall {row['wall_time']:7.1f} s  "
               f"test_success {row['test_success_rate']:.3f}", flush=True)
-        if not args.no_stop_at_target and row["test_success_rate"] >= args.target:
+        if not args.no_stop_at_target and reaches(row["test_success_rate"], args.target):
             raise _Stop
 
     try:
@@ -191,7 +192,7 @@ def run_sb3(args) -> dict:
             curve.append(row)
             print(f"[sb3] env_steps {row['env_steps']:>7,}  wall {train_time:7.1f} s  "
                   f"test_success {m['test_success_rate']:.3f}  updates {row['updates']}", flush=True)
-            if not args.no_stop_at_target and m["test_success_rate"] >= args.target:
+            if not args.no_stop_at_target and reaches(m["test_success_rate"], args.target):
                 return False
             return train_time < args.time_budget
 
@@ -246,7 +247,7 @@ def sb3_eval_every(args) -> int:
 
 def summarize(res: dict, target: float) -> dict:
     curve = res["curve"]
-    hit = next((r for r in curve if r["test_success_rate"] >= target), None)
+    hit = next((r for r in curve if reaches(r["test_success_rate"], target)), None)
     best = max(curve, key=lambda r: r["test_success_rate"]) if curve else None
     last = curve[-1] if curve else None
     return dict(

@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import numpy as np
+
 from daddpg_jax.reproduce import FINAL_COLUMNS, experiments, final_row, Experiment
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -38,6 +40,15 @@ def test_final_row_thresholds():
     assert r["env_steps_to_0.5"] == 200 and r["wall_time_to_0.9"] == 30.0
     assert r["final_test_success"] == 0.9 and r["best_test_success"] == 0.95
     assert set(r) == set(FINAL_COLUMNS)
+
+
+def test_final_row_counts_float32_rates_at_the_level():
+    """90/100 episodes logged in float32 (0.89999998) reaches 0.9; 89/100 does not."""
+    rates = [float(np.float32(0.89)), float(np.float32(0.9)), 1.0]
+    rows = [dict(epoch=i + 1, env_steps=(i + 1) * 100, wall_time=10.0 * (i + 1),
+                 test_success_rate=s, test_arm_contact_rate=0.1) for i, s in enumerate(rates)]
+    r = final_row("push", Experiment("daddpg", "daddpg", "future"), 0, rows)
+    assert r["env_steps_to_0.9"] == 200 and r["wall_time_to_0.9"] == 20.0
 
 
 def test_reproduce_tiny_budget_writes_outputs(tmp_path):
