@@ -23,7 +23,7 @@ from typing import Callable, Optional, Sequence
 
 from daddpg_jax import checkpoint as ckpt
 from daddpg_jax.config import TrainConfig, preset
-from daddpg_jax.levels import first_reaching, reaches  # noqa: F401  (re-exported)
+from daddpg_jax.levels import first_reaching
 from daddpg_jax.runner import train
 
 FINAL_COLUMNS = (
