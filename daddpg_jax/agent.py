@@ -8,6 +8,9 @@ Per agent i (A agents: 2 arms, or 1 for 'single'):
                    + action_l2 * mean(mu_i(o, g)^2)
              the other arm's slot holds the buffer action (or the current policy's action
              under stop_gradient), so J_i depends on actor i's parameters only.
+    demos:   with demonstrations (TrainConfig.n_demos > 0, not in the paper) the batch also
+             holds demo rows (batch["demo"]) and J_i gets + bc_weight * BC_i, the (Q-filtered)
+             squared error between mu_i and the demo action on those rows (`bc_loss`).
 The summed loss over agents has per-agent gradients (agents share no parameters), and Adam is
 elementwise, so one optax update over the stacked parameters updates every agent independently.
 """
@@ -48,6 +51,8 @@ class Learner(NamedTuple):
     target_hi: float
     clip_target: bool
     other_action: str
+    bc_weight: float = 0.0
+    q_filter: bool = True
 
 
 def target_bounds(algo: str, reward_range, gamma: float):
@@ -62,7 +67,8 @@ def make_learner(cfg, reward_range) -> Learner:
     actor, critic = nets.make_networks(cfg.algo, cfg.hidden)
     lo, hi = target_bounds(cfg.algo, reward_range, cfg.gamma)
     return Learner(cfg.algo, actor, critic, optax.adam(cfg.lr_actor), optax.adam(cfg.lr_critic),
-                   cfg.gamma, cfg.polyak, cfg.action_l2, lo, hi, cfg.clip_target, cfg.other_action)
+                   cfg.gamma, cfg.polyak, cfg.action_l2, lo, hi, cfg.clip_target, cfg.other_action,
+                   float(cfg.bc_weight) if cfg.n_demos > 0 else 0.0, bool(cfg.q_filter))
 
 
 def init_agent_state(key, learner: Learner, hidden, obs_size: int, goal_size: int = 3) -> AgentState:
@@ -130,7 +136,39 @@ def actor_loss(actor_params, critic_params, batch, learner: Learner):
     mixed = jnp.where(own, jnp.tile(pi, (1, 1, own.shape[-1] // d)), _bcast(base, n))
     q = q_values(learner, critic_params, batch["o"], batch["g"], mixed)     # [A, B]
     per_agent = -jnp.mean(q, 1) + learner.action_l2 * jnp.mean(jnp.square(pi), axis=(1, 2))
-    return jnp.sum(per_agent), dict(actor_loss=per_agent)
+    aux = dict(actor_loss=per_agent)
+    if "demo" in batch:
+        bc, passed = bc_loss(pi, q, critic_params, batch, learner)
+        per_agent = per_agent + learner.bc_weight * bc
+        aux.update(actor_loss=per_agent, bc_loss=bc, q_filter_pass=passed)
+    return jnp.sum(per_agent), aux
+
+
+def own_actions(algo: str, a):
+    """Joint actions [B, 8] -> each agent's own slot [A, B, d] (inverse of joint_action)."""
+    if algo == "single":
+        return a[None]
+    return jnp.swapaxes(a.reshape(a.shape[0], 2, nets.ARM_ACTION), 0, 1)
+
+
+def bc_loss(pi, q_pi, critic_params, batch, learner: Learner):
+    """Behaviour cloning on the demo rows of a batch (batch["demo"] [B] bool).
+
+    Per agent i: sum over demo rows of f_i * ||pi_i - a_demo,i||^2 / (number of demo rows),
+    with f_i = [Q_i(o, g, a_demo) > Q_i(o, g, a with slot i = pi_i)] under the Q filter
+    (q_pi: the latter, [A, B]) and f_i = 1 without it. Returns (bc [A], filter pass rate [A]
+    over demo rows)."""
+    demo = batch["demo"].astype(jnp.float32)                               # [B]
+    n = pi.shape[0]
+    err = jnp.sum(jnp.square(pi - own_actions(learner.algo, batch["a"])), -1)   # [A, B]
+    if learner.q_filter:
+        q_demo = q_values(learner, critic_params, batch["o"], batch["g"], _bcast(batch["a"], n))
+        keep = jax.lax.stop_gradient((q_demo > q_pi).astype(jnp.float32))
+    else:
+        keep = jnp.ones_like(err)
+    w = keep * demo[None]
+    n_demo = jnp.maximum(jnp.sum(demo), 1.0)
+    return jnp.sum(w * err, 1) / n_demo, jnp.sum(w, 1) / n_demo
 
 
 def update(agent: AgentState, batch, learner: Learner, axis_name=None):

@@ -7,6 +7,8 @@ resumes with the same networks and normalizers but refills the replay from scrat
 not bit-identical to an uninterrupted run. With the buffer saved, 1 epoch + resume + 1 epoch
 equals a 2-epoch run. Orbax writes to a temporary directory and renames it when complete, so a
 killed run resumes from the last complete checkpoint. The last `keep` checkpoints are kept.
+Demonstration episodes (TrainConfig.n_demos) are never saved: `init` plays the same ones again
+from the seed, and restoring keeps the template's.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ def _manager(run_dir, keep: Optional[int] = None) -> ocp.CheckpointManager:
 def _split(state):
     tree = serialization.to_state_dict(state)
     buffer = tree.pop("buffer")
+    # demonstrations are not saved: init replays them from the seed (same episodes)
+    tree.pop("demos", None)
     return tree, buffer
 
 
@@ -113,6 +117,7 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
     with _manager(run_dir) as mngr:
         out = mngr.restore(step, args=ocp.args.Composite(**items))
     full = dict(out["state"])
+    full["demos"] = serialization.to_state_dict(template)["demos"]
     if restore_buffer:
         full["buffer"] = out["buffer"]
     # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys

@@ -83,6 +83,21 @@ class TrainConfig:
     num_devices: int = 0
     """local devices to spread envs, replay and the update batch over (0 = all local devices;
     1 = the single-device code path). num_envs and batch_size must be multiples of it"""
+    n_demos: int = 0
+    """scripted demonstration episodes (the task's controller in mjx_envs/scripted.py) rolled
+    out once at init and kept in a fixed demo buffer beside the replay (0 = none: the paper's
+    setting). Not part of the paper: with n_demos > 0 every update adds `demo_batch`
+    HER-relabelled demo transitions to the batch of critics and actors and a behaviour-cloning
+    term on them (demonstrations as in Nair et al. 2018). Demo env steps are not counted in
+    env_steps"""
+    demo_batch: int = 128
+    """demo transitions added to each update's batch (with n_demos > 0)"""
+    bc_weight: float = 10.0
+    """weight of the behaviour-cloning term: mean over demo transitions of
+    ||mu_i(o, g) - a_demo,i||^2 (arm i's slot of the demo action), added to each actor's loss"""
+    q_filter: bool = True
+    """apply the behaviour-cloning term only on demo transitions where agent i's critic rates
+    the demo action above the actor's own (Q filter)"""
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -95,6 +110,12 @@ class TrainConfig:
             raise ValueError("replay_k must be >= 0")
         if self.num_devices < 0:
             raise ValueError("num_devices must be >= 0 (0 = all local devices)")
+        if self.n_demos < 0:
+            raise ValueError("n_demos must be >= 0")
+        if self.n_demos > 0 and self.demo_batch < 1:
+            raise ValueError("demo_batch must be >= 1 when n_demos > 0")
+        if self.bc_weight < 0:
+            raise ValueError("bc_weight must be >= 0")
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
 
     @property

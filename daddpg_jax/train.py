@@ -43,6 +43,7 @@ class TrainState:
     obs_norm: norm.NormState
     goal_norm: norm.NormState
     buffer: replay.ReplayBuffer
+    demos: replay.Episodes  # fixed demonstration episodes [n_demos, ...] (0 when off)
     key: jax.Array          # uint32[2] PRNG key
     cycles: jax.Array       # int32: cycles done
     updates: jax.Array      # int32: gradient updates done
@@ -65,7 +66,8 @@ class TrainFns(NamedTuple):
 
 
 def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
-                   update_progress: Optional[Callable] = None, update_tick: int = 0) -> TrainFns:
+                   update_progress: Optional[Callable] = None, update_tick: int = 0,
+                   demo_policy: Optional[Callable] = None) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
@@ -73,6 +75,9 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     update_progress: optional host function `update_progress(n)` called after every
     `update_tick` gradient updates inside a cycle with n = updates done in that cycle, so a
     progress bar moves during long cycles (large num_envs on a CPU); 0 or None compiles none.
+    demo_policy: with cfg.n_demos > 0, the controller that plays the demonstrations, a pure
+    function of the env's observation dict -> joint action [..., 8]; default: the task's
+    scripted controller (mjx_envs.scripted) at the env's max_delta.
     """
     T = int(env.episode_length)
     n_arms = int(env.num_arms)
@@ -90,6 +95,20 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         mesh = shd.make_mesh(n_dev)
     n_envs_local, batch_local = cfg.num_envs // n_dev, cfg.batch_size // n_dev
     future_p = cfg.future_p
+    n_demos = int(cfg.n_demos)
+    if n_demos > 0:
+        if demo_policy is None:
+            from mjx_envs import scripted
+
+            if cfg.task not in scripted.POLICIES:
+                raise ValueError(f"n_demos > 0 needs a scripted controller; task {cfg.task!r} has "
+                                 f"none (available: {sorted(scripted.POLICIES)})")
+            ctrl, max_delta = scripted.get_policy(cfg.task), float(env.config.max_delta)
+            demo_policy = lambda obs: ctrl(obs, max_delta)   # noqa: E731
+        if cfg.demo_batch % n_dev:
+            raise ValueError(f"demo_batch ({cfg.demo_batch}) must be a multiple of the number of "
+                             f"devices ({n_dev})")
+    demo_local = cfg.demo_batch // n_dev
     norm_kw = dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
 
     def normalize_inputs(state, o, g):
@@ -105,19 +124,27 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         return nets.joint_action(algo, pi).reshape(lead + (env.action_size,))
 
     def rollout(state: TrainState, key, n_envs: int, explore: bool):
-        k_reset, k_scan = jax.random.split(key)
-        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n_envs))
-
-        def step(carry, _):
-            s, k = carry
-            k, k_noise, k_coin, k_rand = jax.random.split(k, 4)
+        def actors(s, keys):
+            k_noise, k_coin, k_rand = keys
             o, g = normalize_inputs(state, s.obs["observation"], s.obs["desired_goal"])
             pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)   # [A, N, d]
             if explore:
                 pi = jnp.clip(pi + cfg.noise_eps * jax.random.normal(k_noise, pi.shape), -1.0, 1.0)
                 coin = jax.random.bernoulli(k_coin, cfg.random_eps, pi.shape[:2] + (1,))
                 pi = jnp.where(coin, jax.random.uniform(k_rand, pi.shape, minval=-1.0, maxval=1.0), pi)
-            a = nets.joint_action(algo, pi)
+            return nets.joint_action(algo, pi)
+        return play(actors, key, n_envs)
+
+    def play(policy, key, n_envs: int):
+        """Episodes of `policy(env_state, keys) -> joint action [N, 8]` in n_envs fresh envs
+        (keys: three fresh PRNG keys per step)."""
+        k_reset, k_scan = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n_envs))
+
+        def step(carry, _):
+            s, k = carry
+            k, *keys = jax.random.split(k, 4)
+            a = policy(s, keys)
             s2 = jax.vmap(env.step)(s, a)
             out = dict(obs=s2.obs["observation"], ag=s2.obs["achieved_goal"],
                        g=s.obs["desired_goal"], a=a,
@@ -149,10 +176,21 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         k_agent, k_state = jax.random.split(key)
         a_state = agent_lib.init_agent_state(k_agent, learner, cfg.hidden, env.obs_size, env.goal_size)
         buf = replay.init(capacity, T, env.obs_size, env.goal_size, env.action_size, info_keys, n_arms)
-        return TrainState(agent=a_state,
-                          obs_norm=norm.init((n_arms, env.obs_size)),
-                          goal_norm=norm.init((n_arms, env.goal_size)),
-                          buffer=buf, key=k_state,
+        obs_norm, goal_norm = norm.init((n_arms, env.obs_size)), norm.init((n_arms, env.goal_size))
+        if n_demos > 0:
+            # its own stream (fold_in), so the agent's and trainer's keys do not depend on n_demos
+            k_play, k_norm = jax.random.split(jax.random.fold_in(key, DEMO_STREAM))
+            demos, _ = play(lambda s, k: demo_policy(s.obs).astype(jnp.float32), k_play, n_demos)
+            ep = jnp.repeat(jnp.arange(n_demos, dtype=jnp.int32), T)
+            t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n_demos)
+            nt = replay.her_transitions(k_norm, demos, ep, t, cfg.her, future_p, env.compute_reward)
+            obs_norm = norm.update(obs_norm, nt["o"], cfg.clip_obs)
+            goal_norm = norm.update(goal_norm, nt["g"], cfg.clip_obs)
+        else:
+            demos = replay.init(0, T, env.obs_size, env.goal_size, env.action_size, info_keys,
+                                n_arms).data
+        return TrainState(agent=a_state, obs_norm=obs_norm, goal_norm=goal_norm,
+                          buffer=buf, demos=demos, key=k_state,
                           cycles=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32))
 
     def cycle_body(state: TrainState, axis=None):
@@ -175,9 +213,19 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         def one_update(agent, xs):
             k, i = xs
             b = replay.sample(k, buf, batch_local, cfg.her, future_p, env.compute_reward)
+            b = {name: b[name] for name in ("o", "o2", "g", "a", "r")}
+            if n_demos > 0:
+                k_idx, k_her = jax.random.split(jax.random.fold_in(k, DEMO_STREAM))
+                ep, t = replay.sample_indices(k_idx, n_demos, demo_local, T)
+                d = replay.her_transitions(k_her, state.demos, ep, t, cfg.her, future_p,
+                                           env.compute_reward)
+                b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
+                b["demo"] = jnp.arange(batch_local + demo_local) >= batch_local
             o, g = normalize_inputs(state, b["o"], b["g"])
             o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
             batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
+            if n_demos > 0:
+                batch["demo"] = b["demo"]
             out = agent_lib.update(agent, batch, learner, axis_name=axis)
             if update_progress is not None and update_tick:
                 tick = (i + 1) % update_tick == 0
@@ -269,6 +317,10 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
                     rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
                     learner=learner, config=cfg, capacity=capacity, horizon=T,
                     num_devices=n_dev, mesh=mesh, state_shardings=state_shardings)
+
+
+DEMO_STREAM = 0x64656D6F
+"""fold_in constant of the PRNG stream that plays the demonstrations at init."""
 
 
 def _init_wrapper(init_fn, cfg, shardings=None):
