@@ -6,6 +6,7 @@ Examples
   python experiments/run.py --task push --algo maddpg --her final --out runs/push_maddpg
   python experiments/run.py --resume runs/push_maddpg --epochs 200   # continue to 200 epochs
   python experiments/run.py --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
+  python experiments/run.py --task pickup --demos 100          # + 100 scripted demonstrations
 
 Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch}.
 The per-task preset (docs/TRAINING.md) scales batch size and updates per cycle with --num-envs
@@ -70,6 +71,11 @@ def build_parser():
                    help="override any training field (listed below); repeatable")
     p.add_argument("--env", action="append", metavar="KEY=VALUE", default=[],
                    help="override any env field of the task's default_config() (listed below); repeatable")
+    p.add_argument("--demos", type=int, default=None, metavar="N",
+                   help="play N episodes of the task's scripted controller at the start and train "
+                        "on them beside the replay, with a behaviour-cloning term (push, pickup, "
+                        "pot; not in the paper; same as --set n_demos=N; default 0 = off; "
+                        "docs/TRAINING.md#demonstrations)")
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="stop after the epoch during which this much wall time has passed")
     p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
@@ -119,7 +125,10 @@ def main(argv=None):
             if v is not None:
                 over[name] = v
         over.update(sets)
-        cfg = TrainConfig(**over)
+        try:
+            cfg = TrainConfig(**over)
+        except ValueError as e:
+            parser.error(str(e))
         run_dir = args.out or os.path.join(
             "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
         over = {}
@@ -127,12 +136,30 @@ def main(argv=None):
         over["n_epochs"] = args.epochs
     if args.save_buffer:
         over["save_buffer"] = True
-    cfg = cfg.replace(**over)
+    if args.demos is not None:
+        if args.resume and args.demos != cfg.n_demos:
+            parser.error(f"--resume: --demos differs from the run's config ({cfg.n_demos}); "
+                         "start a new run instead")
+        over["n_demos"] = args.demos
+    try:
+        cfg = cfg.replace(**over)
+    except ValueError as e:
+        parser.error(str(e))
+    if cfg.n_demos > 0:
+        from mjx_envs import scripted
+
+        if cfg.task not in scripted.POLICIES:
+            parser.error(f"--demos: task {cfg.task!r} has no scripted controller "
+                         f"(available: {', '.join(sorted(scripted.POLICIES))})")
 
     print(f"run dir: {os.path.abspath(run_dir)}")
     print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
           f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
           f"{cfg.n_epochs} epochs", flush=True)
+    if cfg.n_demos > 0:
+        print(f"demonstrations: {cfg.n_demos} scripted episodes (not counted in env steps), "
+              f"{cfg.demo_batch} demo transitions per update, bc_weight {cfg.bc_weight}, "
+              f"q_filter {cfg.q_filter}", flush=True)
     total = cfg.n_epochs * cfg.n_cycles
     bar = progress = update_progress = None
     # Long cycles (many updates, e.g. --num-envs 2048 on a CPU) also move the bar during the

@@ -75,9 +75,11 @@ def test_cli_help_explains_every_flag_and_field():
     assert out.returncode == 0, out.stderr
     text = out.stdout
     for flag in ("--task", "--num-envs", "--epochs", "--seed", "--algo", "--her", "--physics",
-                 "--out", "--resume", "--set", "--env", "--save-buffer", "--time-budget"):
+                 "--out", "--resume", "--set", "--env", "--save-buffer", "--time-budget",
+                 "--demos"):
         assert flag in text, flag
-    for field in ("gamma", "polyak", "noise_eps", "random_eps", "batch_size", "max_delta",
+    for field in ("gamma", "polyak", "noise_eps", "random_eps", "batch_size", "n_demos",
+                  "bc_weight", "q_filter", "max_delta",
                   "distance_threshold", "arm_contact_penalty"):
         assert f"  {field} (" in text, field
 
@@ -87,6 +89,17 @@ def test_cli_rejects_unknown_fields(tmp_path):
                           "--set", "gama=0.9", "--out", str(tmp_path / "x")],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode != 0 and "unknown --set field 'gama'" in out.stderr
+
+
+def test_cli_rejects_demos_without_a_scripted_controller(tmp_path):
+    run = [sys.executable, os.path.join(ROOT, "experiments", "run.py"), "--out", str(tmp_path / "x")]
+    out = subprocess.run(run + ["--task", "reach", "--demos", "10"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 2 and "has no scripted controller" in out.stderr
+    out = subprocess.run(run + ["--task", "pickup", "--demos", "-1"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 2 and "n_demos must be >= 0" in out.stderr
+    assert not os.path.exists(tmp_path / "x")
 
 
 def test_cli_trains_reach_tiny(tmp_path):
