@@ -117,7 +117,6 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
     with _manager(run_dir) as mngr:
         out = mngr.restore(step, args=ocp.args.Composite(**items))
     full = dict(out["state"])
-    full["demos"] = serialization.to_state_dict(template)["demos"]
     if restore_buffer:
         full["buffer"] = out["buffer"]
     # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys
@@ -130,6 +129,7 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
         full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
     if not restore_buffer:
         full["buffer"] = buffer
+    full["demos"] = serialization.to_state_dict(template)["demos"]
     return serialization.from_state_dict(template, full), step
 
 

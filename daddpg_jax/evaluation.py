@@ -85,8 +85,9 @@ def load_policy(run_dir: str, step: Optional[int] = None, physics: Optional[str]
     cfg, payload = ckpt.load_config(run_dir)
     if physics is not None:
         cfg = cfg.replace(physics=physics)
-    # acting needs no replay buffer: a template with the smallest one (num_envs episodes)
-    cfg = cfg.replace(buffer_size=1)
+    # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
+    # nor the demonstrations (n_demos > 0 would play them again to build the template)
+    cfg = cfg.replace(buffer_size=1, n_demos=0)
     env = make_env(cfg, payload.get("env_overrides") or {})
     fns = make_train_fns(env, cfg)
     state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False)

@@ -166,3 +166,21 @@ def test_scripted_pickup_demos_succeed_on_c_engine():
     assert np.all(dist < env.config.distance_threshold)
     lift = np.asarray(d.ag[:, -1, :, 2] - d.ag[:, 0, :, 2])
     assert np.all(lift > 0.04)   # every test goal is >= 0.05 m above the resting height
+
+
+
+def test_restore_into_abstract_or_demo_free_template(demo_fns, demo_epoch, env, tmp_path):
+    """The exporter restores into jax.eval_shape(init) and evaluation into a template built with
+    n_demos = 0: both get the trained agents and normalizers."""
+    s1 = demo_epoch[1]
+    ckpt.save(tmp_path, s1, step=1)
+    abstract = jax.eval_shape(demo_fns.init, jax.random.PRNGKey(0))
+    restored, _ = ckpt.restore(tmp_path, abstract)
+    assert restored.demos.actions.shape == (N_DEMOS, T, 8)
+    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.agent),
+                                                     jax.tree.leaves(s1.agent)))
+    plain = make_train_fns(env, DEMO.replace(n_demos=0)).init()
+    restored, _ = ckpt.restore(tmp_path, plain)
+    assert restored.demos.actions.shape[0] == 0
+    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.obs_norm),
+                                                     jax.tree.leaves(s1.obs_norm)))
