@@ -4,8 +4,9 @@ Each controller reads only the env's observation dict (``observation`` [..., 2, 
 ``achieved_goal`` [..., 2, 3], ``desired_goal`` [..., 2, 3]) and returns the 8-d action
 [..., 8]. No hidden state: the phase of each arm (approach, descend, close, carry) is inferred
 from the observation itself, so a controller is jit-able, vmap-able and can drive the env from
-inside ``lax.scan``. They serve as tests of the physics (a task is solvable) and as demos; they
-are not part of training.
+inside ``lax.scan``. They serve as tests of the physics (a task is solvable), as demos, and,
+only when asked for (``TrainConfig.n_demos`` / ``run.py --demos``), as the demonstrations the
+trainer imitates; default training does not use them.
 
 Conventions shared with the scenes: the object point of each arm (bar neck / pot handle) is the
 place its gripper holds; the tool centre point sits ``GRASP_DZ`` above it when holding.
