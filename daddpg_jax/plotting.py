@@ -84,8 +84,9 @@ def run_config(path: str) -> dict:
 
 
 def run_label(path: str) -> str:
-    """Default label of a run: ``task/algo`` (+ ``/N envs`` when not 2) from its config.json,
-    else the directory name. Runs that differ only in seed get the same label."""
+    """Default label of a run: ``task/algo`` (+ ``/N envs`` when not 2, + ``+N demos`` with
+    demonstrations) from its config.json, else the directory name. Runs that differ only in
+    seed get the same label."""
     import json
 
     run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
@@ -98,6 +99,8 @@ def run_label(path: str) -> str:
     label = f"{c.get('task', '?')}/{c.get('algo', '?')}"
     if int(c.get("num_envs", 2)) != 2:
         label += f"/{c['num_envs']} envs"
+    if int(c.get("n_demos", 0)) > 0:
+        label += f"+{c['n_demos']} demos"
     return label
 
 

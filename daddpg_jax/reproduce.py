@@ -137,8 +137,10 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[st
         w.writeheader()
         w.writerows(finals)
     main_label = (algos[0] if algos else MAIN.label)
+    demos = int((overrides or {}).get("n_demos", 0))
     plot_runs({main_label: groups[main_label]}, os.path.join(task_dir, "curves.png"),
-              title=f"{task}: {main_label} over {seeds} seed(s)")
+              title=f"{task}: {main_label}{f' + {demos} demos' if demos else ''} "
+                    f"over {seeds} seed(s)")
     if len(groups) > 1:
         plot_runs(groups, os.path.join(task_dir, "ablations.png"), title=f"{task}: variants")
     summary = {"task": task, "seeds": seeds, "first_seed": first_seed, "ablations": ablations, "env_steps": env_steps,

@@ -15,7 +15,7 @@ from daddpg_jax.runner import METRIC_COLUMNS
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _fake_run(path, success, wall_per_epoch, algo="daddpg", seed=0):
+def _fake_run(path, success, wall_per_epoch, algo="daddpg", seed=0, n_demos=0):
     os.makedirs(path, exist_ok=True)
     with open(os.path.join(path, "metrics.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
@@ -26,7 +26,8 @@ def _fake_run(path, success, wall_per_epoch, algo="daddpg", seed=0):
                        test_success_rate=s, test_arm_contact_rate=0.1 + 0.05 * i)
             w.writerow(row)
     with open(os.path.join(path, "config.json"), "w") as f:
-        json.dump({"config": {"task": "reach", "algo": algo, "num_envs": 2, "seed": seed}}, f)
+        json.dump({"config": {"task": "reach", "algo": algo, "num_envs": 2, "seed": seed,
+                              "n_demos": n_demos}}, f)
     return str(path)
 
 
@@ -54,6 +55,8 @@ def test_aggregate_mean_and_band(tmp_path):
     # seeds of one configuration share a default label
     assert plotting.run_label(str(tmp_path / "a")) == plotting.run_label(str(tmp_path / "b")) \
         == "reach/daddpg"
+    d = _fake_run(tmp_path / "d", [0.5], 10.0, n_demos=100)
+    assert plotting.run_label(d) == "reach/daddpg+100 demos"
 
 
 def test_cli_two_runs_png(tmp_path):
