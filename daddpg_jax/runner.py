@@ -30,8 +30,11 @@ METRIC_COLUMNS = (
     "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
     "test_final_distance_left", "test_final_distance_right", "train_success_rate",
     "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
-    "updates_per_s",
+    "updates_per_s", "bc_loss", "q_filter_pass",
 )
+"""Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
+rate, mean over the epoch's updates and the agents) are NaN without demonstrations; CSVs written
+before they existed lack them and are rewritten with them (blank) on --resume."""
 
 
 class NonFiniteLoss(RuntimeError):
@@ -65,7 +68,7 @@ def _append_row(path, row: dict) -> None:
         w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
         if new:
             w.writeheader()
-        w.writerow({k: row[k] for k in METRIC_COLUMNS})
+        w.writerow({k: row.get(k, "") for k in METRIC_COLUMNS})
 
 
 def _scalar(x) -> float:
@@ -83,7 +86,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
           on_epoch: Optional[Callable[[dict], None]] = None, plot: bool = True,
           command: Optional[str] = None, time_budget_s: Optional[float] = None,
           env: Any = None, update_progress: Optional[Callable[[int], None]] = None,
-          update_tick: int = 0) -> RunResult:
+          update_tick: int = 0, demo_policy: Optional[Callable] = None) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
@@ -91,6 +94,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
     env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
     update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
+    demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
+    scripted controller; see ``make_train_fns``).
     """
     env_overrides = dict(env_overrides or {})
     os.makedirs(run_dir, exist_ok=True)
@@ -100,7 +105,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
     from daddpg_jax.train import make_train_fns
 
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
-                         update_tick=update_tick)
+                         update_tick=update_tick, demo_policy=demo_policy)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     rows = _read_rows(metrics_path) if resume else []
     start_epoch, wall_offset = 0, 0.0
@@ -152,6 +157,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
             "mean_q": _scalar(m["mean_q"]) if "mean_q" in m else math.nan,
             "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / dt,
             "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
+            "bc_loss": _scalar(m["bc_loss"]) if "bc_loss" in m else math.nan,
+            "q_filter_pass": _scalar(m["q_filter_pass"]) if "q_filter_pass" in m else math.nan,
         }
         _append_row(metrics_path, row)
         ckpt.save(run_dir, state, epoch, save_buffer=cfg.save_buffer, keep=cfg.keep_checkpoints)

@@ -184,3 +184,13 @@ def test_restore_into_abstract_or_demo_free_template(demo_fns, demo_epoch, env, 
     assert restored.demos.actions.shape[0] == 0
     assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.obs_norm),
                                                      jax.tree.leaves(s1.obs_norm)))
+
+
+def test_runner_logs_bc_columns(env, tmp_path):
+    import csv
+
+    from daddpg_jax.runner import train
+
+    train(DEMO.replace(n_epochs=1), str(tmp_path), env=env, plot=False, demo_policy=toy_demo_policy)
+    row = next(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert float(row["bc_loss"]) >= 0 and 0 <= float(row["q_filter_pass"]) <= 1

@@ -54,6 +54,24 @@ def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
     assert _learning_columns(_rows(b)) == _learning_columns(rows)
 
 
+def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
+    """A run whose metrics.csv predates the bc_loss/q_filter_pass columns resumes; the CSV is
+    rewritten with every current column (blank where the old rows had none)."""
+    run = str(tmp_path / "old")
+    train(TINY.replace(n_epochs=1), run, env=env, plot=False)
+    old_cols = [c for c in METRIC_COLUMNS if c not in ("bc_loss", "q_filter_pass")]
+    rows = _rows(run)
+    with open(os.path.join(run, "metrics.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=old_cols)
+        w.writeheader()
+        w.writerows({k: r[k] for k in old_cols} for r in rows)
+    train(TINY.replace(n_epochs=2), run, env=env, resume=True, plot=False)
+    new = _rows(run)
+    assert list(new[0].keys()) == list(METRIC_COLUMNS)
+    assert new[0]["bc_loss"] == "" and new[1]["bc_loss"] == "nan"
+    assert new[0]["test_success_rate"] == rows[0]["test_success_rate"]
+
+
 def test_resume_without_checkpoint_fails_clearly(env, tmp_path):
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
