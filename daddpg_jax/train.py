@@ -100,16 +100,24 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         if demo_policy is None:
             from mjx_envs import scripted
 
-            if cfg.task not in scripted.POLICIES:
-                raise ValueError(f"n_demos > 0 needs a scripted controller; task {cfg.task!r} has "
-                                 f"none (available: {sorted(scripted.POLICIES)})")
             ctrl, max_delta = scripted.get_policy(cfg.task), float(env.config.max_delta)
             demo_policy = lambda obs: ctrl(obs, max_delta)   # noqa: E731
         if cfg.demo_batch % n_dev:
             raise ValueError(f"demo_batch ({cfg.demo_batch}) must be a multiple of the number of "
                              f"devices ({n_dev})")
     demo_local = cfg.demo_batch // n_dev
+    demo_rows = jnp.arange(batch_local + demo_local) >= batch_local   # update batch: demo rows last
     norm_kw = dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
+
+    def update_normalizers(obs_norm, goal_norm, key, episodes, axis=None):
+        """Both normalizers updated with every transition of `episodes` once, goals after the
+        HER relabelling the learner sees (exhaustive (episode, t) pairs)."""
+        n = episodes.num_episodes
+        ep = jnp.repeat(jnp.arange(n, dtype=jnp.int32), T)
+        t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n)
+        nt = replay.her_transitions(key, episodes, ep, t, cfg.her, future_p, env.compute_reward)
+        return (norm.update(obs_norm, nt["o"], cfg.clip_obs, axis_name=axis),
+                norm.update(goal_norm, nt["g"], cfg.clip_obs, axis_name=axis))
 
     def normalize_inputs(state, o, g):
         return norm.normalize(state.obs_norm, o, **norm_kw), norm.normalize(state.goal_norm, g, **norm_kw)
@@ -181,11 +189,7 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
             # its own stream (fold_in), so the agent's and trainer's keys do not depend on n_demos
             k_play, k_norm = jax.random.split(jax.random.fold_in(key, DEMO_STREAM))
             demos, _ = play(lambda s, k: demo_policy(s.obs).astype(jnp.float32), k_play, n_demos)
-            ep = jnp.repeat(jnp.arange(n_demos, dtype=jnp.int32), T)
-            t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n_demos)
-            nt = replay.her_transitions(k_norm, demos, ep, t, cfg.her, future_p, env.compute_reward)
-            obs_norm = norm.update(obs_norm, nt["o"], cfg.clip_obs)
-            goal_norm = norm.update(goal_norm, nt["g"], cfg.clip_obs)
+            obs_norm, goal_norm = update_normalizers(obs_norm, goal_norm, k_norm, demos)
         else:
             demos = replay.init(0, T, env.obs_size, env.goal_size, env.action_size, info_keys,
                                 n_arms).data
@@ -203,11 +207,8 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         episodes, tr = rollout(state, k_roll, n_envs_local, explore=True)
         buf = replay.insert(state.buffer, episodes)
 
-        ep = jnp.repeat(jnp.arange(n_envs_local, dtype=jnp.int32), T)
-        t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n_envs_local)
-        nt = replay.her_transitions(k_norm, episodes, ep, t, cfg.her, future_p, env.compute_reward)
-        obs_norm = norm.update(state.obs_norm, nt["o"], cfg.clip_obs, axis_name=axis)
-        goal_norm = norm.update(state.goal_norm, nt["g"], cfg.clip_obs, axis_name=axis)
+        obs_norm, goal_norm = update_normalizers(state.obs_norm, state.goal_norm, k_norm,
+                                                 episodes, axis)
         state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
 
         def one_update(agent, xs):
@@ -220,12 +221,11 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
                 d = replay.her_transitions(k_her, state.demos, ep, t, cfg.her, future_p,
                                            env.compute_reward)
                 b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
-                b["demo"] = jnp.arange(batch_local + demo_local) >= batch_local
             o, g = normalize_inputs(state, b["o"], b["g"])
             o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
             batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
             if n_demos > 0:
-                batch["demo"] = b["demo"]
+                batch["demo"] = demo_rows
             out = agent_lib.update(agent, batch, learner, axis_name=axis)
             if update_progress is not None and update_tick:
                 tick = (i + 1) % update_tick == 0
