@@ -1,5 +1,5 @@
 """DADDPG (multi-agent DDPG + HER) for two cooperating arms, in JAX."""
 
-from daddpg_jax.config import TrainConfig, preset, replay_ratio
+from daddpg_jax.algo.config import TrainConfig, preset, replay_ratio
 
 __all__ = ["TrainConfig", "preset", "replay_ratio"]

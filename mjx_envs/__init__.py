@@ -2,7 +2,7 @@
 
 ``mjx_envs.make(task, physics="auto", **overrides)`` builds a task; see ``docs/ENVIRONMENTS.md``.
 
-Imports are lazy (PEP 562): ``import mjx_envs.observation`` (or ``mjx_envs.ur3``,
+Imports are lazy (PEP 562): ``import mjx_envs.observation`` (or ``daddpg_jax.deploy.ur3``,
 ``mjx_envs.numpy_env``) does not import JAX, so the robot side can reuse the observation code
 with NumPy only. ``make``, ``State``, ``TaskConfig``, ``DualArmEnv`` and the task classes load
 the JAX environments on first use.
@@ -16,10 +16,10 @@ TASKS = ("reach", "push", "pickup", "pot")
 
 # task name -> env class, or (module, class name) until first use
 _REGISTRY: dict = {
-    "reach": ("mjx_envs.reach", "Reach"),
-    "push": ("mjx_envs.push", "Push"),
-    "pickup": ("mjx_envs.pickup", "Pickup"),
-    "pot": ("mjx_envs.pot", "Pot"),
+    "reach": ("mjx_envs.tasks.reach", "Reach"),
+    "push": ("mjx_envs.tasks.push", "Push"),
+    "pickup": ("mjx_envs.tasks.pickup", "Pickup"),
+    "pot": ("mjx_envs.tasks.pot", "Pot"),
 }
 
 _LAZY = {
@@ -27,10 +27,10 @@ _LAZY = {
     "State": ("mjx_envs.core", "State"),
     "TaskConfig": ("mjx_envs.core", "TaskConfig"),
     "replace_config": ("mjx_envs.core", "replace_config"),
-    "Reach": ("mjx_envs.reach", "Reach"),
-    "Push": ("mjx_envs.push", "Push"),
-    "Pickup": ("mjx_envs.pickup", "Pickup"),
-    "Pot": ("mjx_envs.pot", "Pot"),
+    "Reach": ("mjx_envs.tasks.reach", "Reach"),
+    "Push": ("mjx_envs.tasks.push", "Push"),
+    "Pickup": ("mjx_envs.tasks.pickup", "Pickup"),
+    "Pot": ("mjx_envs.tasks.pot", "Pot"),
 }
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs.backends import make_backend, default_physics
+from mjx_envs.physics.backends import make_backend, default_physics
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 NUM_ARMS = 2

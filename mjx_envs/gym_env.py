@@ -125,7 +125,7 @@ class _TaskSim(NumpyDualArmEnv):
             self._target_high = np.asarray(s["target_high"], np.float32)
             self._target_radius = tuple(float(v) for v in s["target_radius"])
 
-    # -- task hooks (NumPy versions of mjx_envs.push.ObjectPoseTask) ---------------------------
+    # -- task hooks (NumPy versions of mjx_envs.tasks.push.ObjectPoseTask) ---------------------------
 
     def _object_points(self, pos, yaw):
         c, s = math.cos(yaw), math.sin(yaw)

@@ -38,7 +38,7 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 NUM_ARMS = 2
 SUPPORTED_TASKS = ("reach",)
 
-# settings of the reach task's default_config() (mjx_envs/reach.py + core.TaskConfig); the
+# settings of the reach task's default_config() (mjx_envs/tasks/reach.py + core.TaskConfig); the
 # policy export carries the values a run actually used, which take precedence
 REACH_SETTINGS: dict[str, Any] = dict(
     scene="scene_reach.xml", episode_length=50, n_substeps=4, timestep=0.01, cone="pyramidal",

@@ -5,10 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax import agent as agent_lib
-from daddpg_jax import networks as nets
-from daddpg_jax import normalizer as norm
-from daddpg_jax.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
+from daddpg_jax.algo import losses as agent_lib
+from daddpg_jax.algo import networks as nets
+from daddpg_jax.algo import normalizer as norm
+from daddpg_jax.algo.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
 
 OBS, B = 25, 16
 HIDDEN = (16, 16)

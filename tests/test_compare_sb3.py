@@ -29,8 +29,7 @@ def test_compare_rejects_unknown_method(tmp_path):
 
 
 def _parse(*argv):
-    sys.path.insert(0, os.path.join(ROOT, "experiments"))
-    import compare_sb3
+    from daddpg_jax.cli import compare_sb3
 
     return compare_sb3, compare_sb3.build_parser().parse_args(list(argv))
 

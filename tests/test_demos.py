@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax import agent as agent_lib
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax import networks as nets
-from daddpg_jax.config import TrainConfig, preset
-from daddpg_jax.train import make_train_fns
+from daddpg_jax.algo import losses as agent_lib
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo import networks as nets
+from daddpg_jax.algo.config import TrainConfig, preset
+from daddpg_jax.algo.train import make_train_fns
 from tests import toy_env
 from tests.test_agent import HIDDEN, OBS, random_batch
 
@@ -189,7 +189,7 @@ def test_restore_into_abstract_or_demo_free_template(demo_fns, demo_epoch, env, 
 def test_runner_logs_bc_columns(env, tmp_path):
     import csv
 
-    from daddpg_jax.runner import train
+    from daddpg_jax.running.runner import train
 
     train(DEMO.replace(n_epochs=1), str(tmp_path), env=env, plot=False, demo_policy=toy_demo_policy)
     row = next(csv.DictReader(open(tmp_path / "metrics.csv")))

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax.config import TrainConfig
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy, PolicyFormatError
-from daddpg_jax.export import ExportError, export_run, export_state
-from daddpg_jax.train import make_train_fns
+from daddpg_jax.running.export import ExportError, export_run, export_state
+from daddpg_jax.algo.train import make_train_fns
 from mjx_envs import observation as obs_lib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -225,8 +225,8 @@ JAX_FREE_SCRIPT = textwrap.dedent("""
 
     sys.meta_path.insert(0, Block())
     import numpy as np
-    import daddpg_jax.deploy, daddpg_jax.safety, daddpg_jax.robot, daddpg_jax.server
-    import mjx_envs.observation, mjx_envs.numpy_env, mjx_envs.ur3
+    import daddpg_jax.deploy, daddpg_jax.deploy.safety, daddpg_jax.deploy.robot, daddpg_jax.deploy.server
+    import mjx_envs.observation, mjx_envs.numpy_env, daddpg_jax.deploy.ur3
     policy = daddpg_jax.deploy.NumpyPolicy.load(sys.argv[1])
     env = mjx_envs.numpy_env.NumpyDualArmEnv(policy.env)
     res = env.reset(np.random.default_rng(0))

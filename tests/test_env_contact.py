@@ -17,7 +17,7 @@ import pytest
 
 import mjx_envs
 from mjx_envs import observation as obs_lib
-from mjx_envs import scripted
+from mjx_envs.tasks import scripted
 
 TASKS = ("push", "pickup", "pot")
 ENGINES = ("c", "mjx")

@@ -10,7 +10,7 @@ import pytest
 
 import mjx_envs
 from mjx_envs import observation as obs_lib
-from mjx_envs import ur3
+from daddpg_jax.deploy import ur3
 from tests.env_fixtures import (B, ROW_COLLIDE, ROW_LX, ROW_LY, ROW_LZ, ROW_R10X, ROW_RANDOM,
                                 ROW_RX, ROW_ZERO, T, rollout)
 

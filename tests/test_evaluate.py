@@ -1,4 +1,4 @@
-"""Evaluation of a trained run (daddpg_jax/evaluation.py, experiments/evaluate.py): Wilson
+"""Evaluation of a trained run (daddpg_jax/analysis/evaluation.py, experiments/evaluate.py): Wilson
 interval, output fields, agreement with the run's own logged test success, CLI and video."""
 
 import json
@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from daddpg_jax import evaluation
-from daddpg_jax.config import TrainConfig
-from daddpg_jax.runner import train
+from daddpg_jax.analysis import evaluation
+from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.running.runner import train
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 N_TEST = 12

@@ -3,8 +3,8 @@
 import jax
 
 import mjx_envs
-from daddpg_jax.config import TrainConfig, preset
-from daddpg_jax.train import make_train_fns
+from daddpg_jax.algo.config import TrainConfig, preset
+from daddpg_jax.algo.train import make_train_fns
 
 
 def test_reach_learns_within_two_epochs():

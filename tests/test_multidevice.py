@@ -1,4 +1,4 @@
-"""Multi-device training on 2 forced host CPU devices (daddpg_jax/sharding.py).
+"""Multi-device training on 2 forced host CPU devices (daddpg_jax/algo/sharding.py).
 
 XLA reads --xla_force_host_platform_device_count only before JAX starts, so every check runs
 in a fresh Python process with XLA_FLAGS set and prints one JSON line that the test reads.
@@ -38,8 +38,10 @@ def run_2dev(body: str, timeout: int = 240) -> dict:
 
 def test_sharded_update_equals_unsharded_update():
     out = run_2dev("""
-    from daddpg_jax import agent as agent_lib, normalizer as norm, sharding as shd
-    from daddpg_jax.config import TrainConfig
+    from daddpg_jax.algo import losses as agent_lib
+    from daddpg_jax.algo import normalizer as norm
+    from daddpg_jax.algo import sharding as shd
+    from daddpg_jax.algo.config import TrainConfig
     from jax.sharding import PartitionSpec as P
     OBS, B = 25, 64
     res = {}
@@ -88,9 +90,9 @@ def test_sharded_update_equals_unsharded_update():
 
 def test_two_device_toy_training_learns_and_resumes(tmp_path):
     out = run_2dev(f"""
-    from daddpg_jax import checkpoint as ckpt
-    from daddpg_jax.config import TrainConfig
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.running import checkpoint as ckpt
+    from daddpg_jax.algo.config import TrainConfig
+    from daddpg_jax.algo.train import make_train_fns
     from tests import toy_env
     T = 10
     env = toy_env.make(episode_length=T, threshold=0.03, goal_range=0.1)
@@ -148,8 +150,8 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
 def test_two_device_reach_c_engine_callback_per_shard():
     out = run_2dev("""
     import mjx_envs
-    from daddpg_jax.config import TrainConfig
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.algo.config import TrainConfig
+    from daddpg_jax.algo.train import make_train_fns
     env = mjx_envs.make("reach", physics="c", episode_length=10)
     sizes = []
     host_step = env.backend._host_step
@@ -176,7 +178,7 @@ def test_two_device_reach_c_engine_callback_per_shard():
 
 
 def test_accelerator_preset_keeps_ratio_and_epoch_size():
-    from daddpg_jax.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
+    from daddpg_jax.algo.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
 
     assert preset("reach") == preset("reach", device="cpu")          # CPU preset unchanged
     p = preset("push", device="gpu")

@@ -1,4 +1,4 @@
-"""Multi-run plots (daddpg_jax/plotting.py, experiments/plot.py) from fake metrics.csv files."""
+"""Multi-run plots (daddpg_jax/analysis/plotting.py, experiments/plot.py) from fake metrics.csv files."""
 
 import csv
 import json
@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from daddpg_jax import plotting
-from daddpg_jax.runner import METRIC_COLUMNS
+from daddpg_jax.analysis import plotting
+from daddpg_jax.running.runner import METRIC_COLUMNS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax import replay
+from daddpg_jax.algo import replay
 from tests import toy_env
 
 T, OBS = 6, 5
@@ -137,7 +137,7 @@ def test_her_against_python_reference(mode):
 
 
 def test_relabel_probability_from_k():
-    from daddpg_jax.config import TrainConfig
+    from daddpg_jax.algo.config import TrainConfig
     assert TrainConfig(replay_k=4).future_p == pytest.approx(0.8)
     assert TrainConfig(replay_k=4, her="none").future_p == 0.0
 

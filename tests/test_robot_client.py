@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax import robot
-from daddpg_jax.config import TrainConfig, preset
+from daddpg_jax.deploy import robot
+from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.deploy import NumpyPolicy
-from daddpg_jax.export import _env_settings, export_run, export_state
-from daddpg_jax.safety import SafetyFilter, SafetyLimits
-from daddpg_jax.server import PolicyClient, PolicyServer
-from daddpg_jax.train import make_train_fns
-from mjx_envs import ur3
+from daddpg_jax.running.export import _env_settings, export_run, export_state
+from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
+from daddpg_jax.deploy.server import PolicyClient, PolicyServer
+from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.deploy import ur3
 from mjx_envs.numpy_env import NumpyDualArmEnv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -357,7 +357,7 @@ def test_stop_when_service_is_down_late_or_malformed(settings):
 
 @pytest.mark.slow
 def test_sim_to_sim_success_matches_trainer_eval(tmp_path):
-    from daddpg_jax.runner import train
+    from daddpg_jax.running.runner import train
 
     n = 200
     cfg = TrainConfig(**{**preset("reach"), "n_epochs": 2}, seed=0, n_test_episodes=n, physics="c")

@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax.config import TrainConfig
-from daddpg_jax.runner import METRIC_COLUMNS, NonFiniteLoss, train
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, train
 from tests import toy_env
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax.config import TrainConfig
+from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy
-from daddpg_jax.export import export_state
-from daddpg_jax.server import PolicyClient, PolicyServer, json_depth_exceeds
-from daddpg_jax.train import make_train_fns
+from daddpg_jax.running.export import export_state
+from daddpg_jax.deploy.server import PolicyClient, PolicyServer, json_depth_exceeds
+from daddpg_jax.algo.train import make_train_fns
 from mjx_envs import observation as obs_lib
 
 

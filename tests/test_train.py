@@ -5,10 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax import replay
-from daddpg_jax.config import TrainConfig
-from daddpg_jax.train import make_train_fns
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo import replay
+from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.algo.train import make_train_fns
 from tests import toy_env
 
 T = 10

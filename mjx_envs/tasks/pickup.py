@@ -11,7 +11,7 @@ sampled bar pose 0.05-0.15 m above the bar's resting height; success when both e
 
 from __future__ import annotations
 
-from mjx_envs.push import ObjectPoseTask, ObjectTaskConfig
+from mjx_envs.tasks.object_task import ObjectPoseTask, ObjectTaskConfig
 
 
 class Pickup(ObjectPoseTask):

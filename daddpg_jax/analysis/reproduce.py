@@ -3,7 +3,7 @@ ablations, each run capped by an env-step and a wall-clock budget and resumable.
 
 ``experiments/reproduce.py`` parses flags and calls :func:`run_set`. Layout of ``OUT/<task>/``::
 
-    runs/<label>_s<seed>/   one run directory per experiment (see daddpg_jax.runner)
+    runs/<label>_s<seed>/   one run directory per experiment (see daddpg_jax.running.runner)
     final.csv               one row per run (FINAL_COLUMNS)
     curves.png              the main variant over seeds: success vs env steps and wall clock,
                             arm-contact rate (mean and min-max band)
@@ -21,10 +21,10 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax.config import TrainConfig, preset
-from daddpg_jax.levels import first_reaching
-from daddpg_jax.runner import train
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo.config import TrainConfig, preset
+from daddpg_jax.analysis.levels import first_reaching
+from daddpg_jax.running.runner import train
 
 FINAL_COLUMNS = (
     "task", "label", "algo", "her", "seed", "epochs", "env_steps", "wall_time",
@@ -97,7 +97,7 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
     resume = ckpt.latest_step(run_dir) is not None
     used = 0.0
     if resume:
-        from daddpg_jax.plotting import read_metrics
+        from daddpg_jax.analysis.plotting import read_metrics
 
         path = os.path.join(run_dir, "metrics.csv")
         rows = read_metrics(path) if os.path.exists(path) else []
@@ -120,7 +120,7 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[st
             env_overrides: Optional[dict] = None, log: Callable[[str], None] = print,
             first_seed: int = 0) -> dict:
     """Runs the set and writes final.csv, curves.png, ablations.png and summary.json."""
-    from daddpg_jax.plotting import plot_runs
+    from daddpg_jax.analysis.plotting import plot_runs
 
     task_dir = os.path.join(out_dir, task)
     os.makedirs(os.path.join(task_dir, "runs"), exist_ok=True)

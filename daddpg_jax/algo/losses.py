@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from daddpg_jax import networks as nets
+from daddpg_jax.algo import networks as nets
 
 
 @struct.dataclass

@@ -110,7 +110,7 @@ def train_throughput(env, cfg, repeats: int = 2, rollout_split: bool = True) -> 
     machine. rollout_split: also time the exploration rollout of one cycle alone (its own
     compiled program) to split a cycle into rollout and the rest (insert, normalizer, updates).
     """
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.algo.train import make_train_fns
 
     T = int(env.episode_length)
     fns = make_train_fns(env, cfg)
@@ -167,7 +167,7 @@ def op_profile(env, cfg, logdir: str, top: int = 12) -> dict:
     import re
 
     from jax._src.lib import _profile_data
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.algo.train import make_train_fns
 
     fns = make_train_fns(env, cfg)
     state = fns.init()
@@ -207,7 +207,7 @@ def contacts_per_step(env, num_envs: int = 8, steps: Optional[int] = None, seed:
                       policy: str = "scripted") -> dict:
     """Active contacts per control step over ``num_envs`` episodes.
 
-    policy: 'scripted' (the task's controller in ``mjx_envs.scripted``, which grasps/pushes, so
+    policy: 'scripted' (the task's controller in ``mjx_envs.tasks.scripted``, which grasps/pushes, so
     contacts happen) or 'random' (uniform actions). C engine: the episode is rolled out with the
     env, then each (env, step) state is put into a plain ``MjData`` (qpos, qvel, mocap) and
     ``mj_forward`` gives ``data.ncon`` (contacts within the pair margins). MJX: the count of
@@ -222,7 +222,7 @@ def contacts_per_step(env, num_envs: int = 8, steps: Optional[int] = None, seed:
     if not _has_contacts(env.mj_model):
         return dict(base, contacts_mean=0.0, contacts_max=0, contact_pairs=0)
     if policy == "scripted":
-        from mjx_envs import scripted
+        from mjx_envs.tasks import scripted
 
         act_fn = scripted.get_policy(env.task_name)
     else:

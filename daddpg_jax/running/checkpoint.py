@@ -121,9 +121,9 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
         full["buffer"] = out["buffer"]
     # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys
     # its cache on that, so re-place the restored arrays uncommitted: no recompile on resume.
-    # A multi-device template (sharded replay, see daddpg_jax/sharding.py) is committed to its
+    # A multi-device template (sharded replay, see daddpg_jax/algo/sharding.py) is committed to its
     # NamedShardings already and orbax restores into exactly those: keep them as they are.
-    from daddpg_jax.sharding import is_multi_device
+    from daddpg_jax.algo.sharding import is_multi_device
 
     if not is_multi_device(template):
         full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
@@ -154,7 +154,7 @@ def save_config(run_dir, cfg, **extra) -> str:
     any `extra` JSON-serializable fields (e.g. env overrides)."""
     os.makedirs(run_dir, exist_ok=True)
     cfg_dict = cfg.to_dict() if hasattr(cfg, "to_dict") else dataclasses.asdict(cfg)
-    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     payload = dict(
         config=cfg_dict,
         versions={p: _version(p) for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint",
@@ -172,7 +172,7 @@ def save_config(run_dir, cfg, **extra) -> str:
 
 def load_config(run_dir):
     """Reads RUN_DIR/config.json back into a TrainConfig (and returns the whole payload)."""
-    from daddpg_jax.config import TrainConfig
+    from daddpg_jax.algo.config import TrainConfig
     with open(os.path.join(run_dir, "config.json")) as f:
         payload = json.load(f)
     return TrainConfig.from_dict(payload["config"]), payload

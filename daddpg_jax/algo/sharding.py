@@ -96,7 +96,7 @@ def batch_specs(batch: dict) -> dict:
 def sharded_update(mesh: Mesh, learner):
     """Jitted ``(agent, global_batch) -> (agent, metrics)``: each device takes its slice of the
     batch, gradients are ``pmean``-ed. Equals ``agent.update`` on the whole batch."""
-    from daddpg_jax import agent as agent_lib
+    from daddpg_jax.algo import losses as agent_lib
 
     def local(agent, batch):
         return agent_lib.update(agent, batch, learner, axis_name=AXIS)

@@ -9,7 +9,7 @@ pushing: the pot must be lifted. Success when both handles are within 0.05 m. Fi
 
 from __future__ import annotations
 
-from mjx_envs.push import ObjectPoseTask, ObjectTaskConfig
+from mjx_envs.tasks.object_task import ObjectPoseTask, ObjectTaskConfig
 
 
 class Pot(ObjectPoseTask):

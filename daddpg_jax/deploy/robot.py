@@ -4,18 +4,18 @@ Units: metres, radians, seconds everywhere. Frames:
 
 - **world** (the simulator's and the policy's frame): x forward from the arms' frame towards
   the table, z up; the left arm (index 0) at y = +0.25 m, the right arm (index 1) at
-  y = -0.25 m, both bases 0.40 m above the floor (``mjx_envs.ur3.BASE_POS``), each turned by
+  y = -0.25 m, both bases 0.40 m above the floor (``daddpg_jax.deploy.ur3.BASE_POS``), each turned by
   ``BASE_YAW`` = pi about z.
 - **base** (per arm): the UR controller's base frame, in which ``getl()`` reports and
   ``servoL``/``movel`` take the tool pose ``[x, y, z, rx, ry, rz]`` (position + rotation
-  vector). It equals frame 0 of UR's DH table (``mjx_envs.ur3``), which is what the simulator's
+  vector). It equals frame 0 of UR's DH table (``daddpg_jax.deploy.ur3``), which is what the simulator's
   arms are built from: ``p_world = R_z(yaw) p_base + base_pos``.
 
 Control: the policy runs every control period ``dt`` = ``timestep * n_substeps`` = 0.04 s
 (25 Hz). Arm i's action ``a[4i:4i+4] = [dx, dy, dz, finger]`` in [-1, 1] moves that arm's
 Cartesian tool target by ``max_delta * clip(a[:3], -1, 1)`` metres in the **world** frame
 (0.05 m per axis at most: up to 1.25 m/s per axis at 25 Hz, so a real robot needs the speed cap
-of ``daddpg_jax.safety``), with the tool pointing straight down; ``finger`` maps to the opening
+of ``daddpg_jax.deploy.safety``), with the tool pointing straight down; ``finger`` maps to the opening
 of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice that), or to
 ``locked_opening`` when the task locks the fingers (reach, push).
 
@@ -29,7 +29,7 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-from mjx_envs import ur3
+from daddpg_jax.deploy import ur3
 
 ARMS = ("l", "r")  # index 0 = left, 1 = right
 CONTROL_PERIOD_S = 0.04
@@ -57,7 +57,7 @@ def rot_z(yaw: float) -> np.ndarray:
 
 
 def world_from_base(arm) -> np.ndarray:
-    """4x4 transform world <- base of ``arm`` (same as ``mjx_envs.ur3.base_transform``)."""
+    """4x4 transform world <- base of ``arm`` (same as ``daddpg_jax.deploy.ur3.base_transform``)."""
     return ur3.base_transform(_arm(arm))
 
 
@@ -188,7 +188,7 @@ def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, 
 
     env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a real-robot driver with the same
     ``reset``/``command_targets``/``finger_ctrl``/``step_targets``/``target``);
-    client: ``daddpg_jax.server.PolicyClient``; safety: ``daddpg_jax.safety.SafetyFilter``.
+    client: ``daddpg_jax.deploy.server.PolicyClient``; safety: ``daddpg_jax.deploy.safety.SafetyFilter``.
     An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
     limits' deadline) makes both arms hold. Returns the episode's summary.
     """

@@ -43,7 +43,7 @@ def _check_input(name: str, x, tail: tuple[int, ...]) -> np.ndarray:
 
 
 class NumpyPolicy:
-    """Deterministic actors of an exported run (see ``daddpg_jax/export.py`` for the format)."""
+    """Deterministic actors of an exported run (see ``daddpg_jax/running/export.py`` for the format)."""
 
     def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray],
                  obs_mean, obs_std, goal_mean, goal_std, meta: dict[str, Any]):

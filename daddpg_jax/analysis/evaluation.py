@@ -1,7 +1,7 @@
 """Evaluate a trained run from its checkpoint: success rate with a confidence interval, arm
 contact, final goal distances, and an optional video.
 
-    from daddpg_jax import evaluation
+    from daddpg_jax.analysis import evaluation
     policy = evaluation.load_policy("runs/reach_s0")          # latest checkpoint
     result, traj = evaluation.evaluate(policy, episodes=200, seed=0)
     evaluation.write_video(policy, traj, "reach.mp4", n_episodes=3)
@@ -74,9 +74,9 @@ class Policy:
 
 def load_policy(run_dir: str, step: Optional[int] = None, physics: Optional[str] = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest)."""
-    from daddpg_jax import checkpoint as ckpt
-    from daddpg_jax.runner import make_env
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.running import checkpoint as ckpt
+    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.algo.train import make_train_fns
 
     try:
         ckpt.check_run_dir(run_dir, step)

@@ -18,7 +18,7 @@ Python by `TrainFns.env_steps` so they cannot overflow.
 
 Several local devices (cfg.num_devices, 0 = all): the cycle body runs under `shard_map` over a
 1-d device mesh, data parallel over envs, replay shards and the update batch (see
-daddpg_jax/sharding.py). One device: the code path below without any mesh.
+daddpg_jax/algo/sharding.py). One device: the code path below without any mesh.
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from daddpg_jax import agent as agent_lib
-from daddpg_jax import networks as nets
-from daddpg_jax import normalizer as norm
-from daddpg_jax import replay
-from daddpg_jax import sharding as shd
-from daddpg_jax.config import TrainConfig
+from daddpg_jax.algo import losses as agent_lib
+from daddpg_jax.algo import networks as nets
+from daddpg_jax.algo import normalizer as norm
+from daddpg_jax.algo import replay
+from daddpg_jax.algo import sharding as shd
+from daddpg_jax.algo.config import TrainConfig
 
 
 @struct.dataclass
@@ -77,7 +77,7 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     progress bar moves during long cycles (large num_envs on a CPU); 0 or None compiles none.
     demo_policy: with cfg.n_demos > 0, the controller that plays the demonstrations, a pure
     function of the env's observation dict -> joint action [..., 8]; default: the task's
-    scripted controller (mjx_envs.scripted) at the env's max_delta.
+    scripted controller (mjx_envs.tasks.scripted) at the env's max_delta.
     """
     T = int(env.episode_length)
     n_arms = int(env.num_arms)
@@ -98,7 +98,7 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     n_demos = int(cfg.n_demos)
     if n_demos > 0:
         if demo_policy is None:
-            from mjx_envs import scripted
+            from mjx_envs.tasks import scripted
 
             ctrl, max_delta = scripted.get_policy(cfg.task), float(env.config.max_delta)
             demo_policy = lambda obs: ctrl(obs, max_delta)   # noqa: E731

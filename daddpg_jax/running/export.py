@@ -2,7 +2,7 @@
 
 JAX side of the deployment path (``daddpg_jax/deploy.py`` is the NumPy side)::
 
-    from daddpg_jax.export import export_run
+    from daddpg_jax.running.export import export_run
     export_run("runs/reach", "policy.npz")            # latest checkpoint
     export_run("runs/reach", "policy.npz", step=2)    # a given checkpoint
 
@@ -23,7 +23,7 @@ key                         value
 
 ``A`` is 2 (one actor per arm; arm 0 = left) or 1 for ``single`` (one actor, 8-d output).
 The actor is ``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
-``daddpg_jax.networks.actor_inputs``.
+``daddpg_jax.algo.networks.actor_inputs``.
 """
 
 from __future__ import annotations
@@ -71,13 +71,13 @@ def _env_settings(env) -> dict:
 def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, Any]:
     """The export's arrays and metadata from a TrainState (no file written).
 
-    ``state``: a ``daddpg_jax.train.TrainState`` (only ``agent.actor`` and the normalizers are
+    ``state``: a ``daddpg_jax.algo.train.TrainState`` (only ``agent.actor`` and the normalizers are
     read); ``cfg``: its TrainConfig; ``env``: the env it was trained on.
     """
     import jax
 
-    from daddpg_jax import networks as nets
-    from daddpg_jax import normalizer as norm
+    from daddpg_jax.algo import networks as nets
+    from daddpg_jax.algo import normalizer as norm
     from mjx_envs import observation as obs_lib
 
     actor = jax.device_get(state.agent.actor)
@@ -154,9 +154,9 @@ def export_run(run_dir, out, step: Optional[int] = None) -> str:
     """
     import jax
 
-    from daddpg_jax import checkpoint as ckpt
-    from daddpg_jax.runner import make_env
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.running import checkpoint as ckpt
+    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.algo.train import make_train_fns
 
     run_dir = os.fspath(run_dir)
     try:

@@ -23,8 +23,8 @@ from typing import Any, Callable, Optional
 import jax
 import numpy as np
 
-from daddpg_jax import checkpoint as ckpt
-from daddpg_jax.config import TrainConfig
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo.config import TrainConfig
 
 METRIC_COLUMNS = (
     "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
@@ -102,7 +102,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
     metrics_path = os.path.join(run_dir, "metrics.csv")
     env = env if env is not None else make_env(cfg, env_overrides)
 
-    from daddpg_jax.train import make_train_fns
+    from daddpg_jax.algo.train import make_train_fns
 
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
                          update_tick=update_tick, demo_policy=demo_policy)
@@ -165,7 +165,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
         rows.append(row)
         last = row
         if plot:
-            from daddpg_jax.plotting import plot_learning_curve
+            from daddpg_jax.analysis.plotting import plot_learning_curve
 
             plot_learning_curve(rows, os.path.join(run_dir, "learning_curve.png"),
                                 title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs")

@@ -84,7 +84,7 @@ class TrainConfig:
     """local devices to spread envs, replay and the update batch over (0 = all local devices;
     1 = the single-device code path). num_envs and batch_size must be multiples of it"""
     n_demos: int = 0
-    """scripted demonstration episodes (the task's controller in mjx_envs/scripted.py) rolled
+    """scripted demonstration episodes (the task's controller in mjx_envs/tasks/scripted.py) rolled
     out once at init and kept in a fixed demo buffer beside the replay (0 = none: the paper's
     setting). Not part of the paper: with n_demos > 0 every update adds `demo_batch`
     HER-relabelled demo transitions to the batch of critics and actors and a behaviour-cloning

@@ -1,0 +1,86 @@
+"""Evaluate a trained run: success rate (95% Wilson interval), arm-contact rate, final goal
+distance per arm, over N deterministic episodes from fixed seeds; optionally a video.
+
+Examples
+  python experiments/evaluate.py runs/reach_s0                      # latest checkpoint, 100 episodes
+  python experiments/evaluate.py runs/reach_s0 --step 2 --episodes 500 --seed 7 --json
+  MUJOCO_GL=egl python experiments/evaluate.py runs/reach_s0 --video reach.mp4
+
+The default seed is the run's eval_seed, so with the default 100 episodes the success rate
+equals the test_success_rate that metrics.csv logged for that checkpoint's epoch.
+Video: headless MuJoCo rendering (MUJOCO_GL=egl; Debian/Ubuntu packages libegl1 libegl-mesa0
+libgl1-mesa-dri), mp4 through imageio-ffmpeg, else a GIF beside the requested path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="evaluate.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by experiments/run.py")
+    p.add_argument("--step", type=int, default=None,
+                   help="checkpoint (epoch) to load (default: the latest)")
+    p.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="seed of the evaluation episodes (default: the run's eval_seed)")
+    p.add_argument("--physics", choices=["auto", "mjx", "c"], default=None,
+                   help="physics engine (default: the run's)")
+    p.add_argument("--video", metavar="OUT.mp4", default=None,
+                   help="render the first --video-episodes episodes one after another")
+    p.add_argument("--video-episodes", type=int, default=3, help="episodes in the video (default 3)")
+    p.add_argument("--width", type=int, default=480, help="video width (default 480)")
+    p.add_argument("--height", type=int, default=360, help="video height (default 360)")
+    p.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
+                   help="write the results as JSON to PATH (or to stdout without PATH, instead "
+                        "of the text summary)")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.episodes < 1:
+        print("error: --episodes must be >= 1", file=sys.stderr)
+        return 2
+
+    from daddpg_jax.analysis import evaluation
+
+    try:
+        policy = evaluation.load_policy(args.run_dir, args.step, physics=args.physics)
+    except evaluation.NoCheckpointError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
+    if args.video:
+        try:
+            written = evaluation.write_video(policy, traj, args.video, args.video_episodes,
+                                             args.width, args.height)
+        except evaluation.RenderUnavailable as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 1
+        if written != args.video:
+            print(f"note: no mp4 writer (pip install imageio-ffmpeg); wrote a GIF: {written}",
+                  file=sys.stderr)
+        summary["video"] = os.path.abspath(written)
+    if args.json == "-":
+        print(json.dumps(summary, indent=2))
+    else:
+        print(evaluation.format_summary(summary))
+        if args.video:
+            print(f"video: {summary['video']} ({min(args.video_episodes, args.episodes)} episodes)")
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(summary, f, indent=2)
+            print(f"json: {os.path.abspath(args.json)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,45 @@
+"""Export a training run's actors and normalizers to one NumPy .npz for the robot side.
+
+Examples
+  python experiments/export.py runs/reach --out policy.npz            # latest checkpoint
+  python experiments/export.py runs/reach --step 2 --out policy.npz   # checkpoint 2
+
+The file holds both actors' weights, the normalizers, action scaling, the observation layout and
+the env settings a robot needs (format: daddpg_jax/running/export.py, docs/DEPLOYMENT.md). Load it
+without JAX with daddpg_jax.deploy.NumpyPolicy.load, or serve it with experiments/serve.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="export.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", help="training run directory (with config.json and checkpoints/)")
+    p.add_argument("--step", type=int, default=None, help="checkpoint to export (default: latest)")
+    p.add_argument("--out", required=True, help="output .npz file")
+    args = p.parse_args(argv)
+
+    from daddpg_jax.running.export import ExportError, export_run
+
+    try:
+        path = export_run(args.run_dir, args.out, step=args.step)
+    except ExportError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    from daddpg_jax.deploy import NumpyPolicy
+
+    pol = NumpyPolicy.load(path)
+    print(f"wrote {path}: task {pol.task}, algo {pol.algo}, checkpoint "
+          f"{pol.meta['source'].get('checkpoint_step')}, layers {pol.meta['layer_sizes']}, "
+          f"{os.path.getsize(path) / 1024:.0f} KiB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

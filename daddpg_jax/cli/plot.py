@@ -1,0 +1,101 @@
+r"""Learning curves of one or more runs: test success vs env steps, test success vs wall clock,
+and the arm-contact rate, as three panels (PNG).
+
+Examples
+  python experiments/plot.py runs/reach_s0 --out reach.png
+  python experiments/plot.py runs/reach_daddpg_s{0,1,2} runs/reach_single_s{0,1,2} --out cmp.png
+  python experiments/plot.py runs/a runs/b runs/c --labels daddpg daddpg single --band std --out x.png
+
+Runs that share a label form one group (e.g. seeds): the plot shows the group's mean and a band
+(min-max over its runs by default, or mean +- one std with --band std). Runs are aligned by
+epoch; x values are the mean env steps / wall clock of that epoch over the group's runs.
+Without --labels a run's label is task/algo from its config.json (so seeds group together).
+
+--max-wall / --max-env-steps cut every run to the epochs that ended within that budget, so runs
+of different lengths compare at one budget; --table writes one CSV row per run (the columns of
+reproduce.py's final.csv, computed over the kept epochs), e.g.
+
+  python experiments/plot.py runs/push_daddpg_s0 runs/push_ddpg_s0 --max-wall 720 \
+      --table push_12min.csv --out push_12min.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+
+def _table_row(run: str, label: str, rows: list, cfg: dict) -> dict:
+    from daddpg_jax.analysis.reproduce import Experiment, final_row
+
+    exp = Experiment(label, str(cfg.get("algo", "?")), str(cfg.get("her", "?")))
+    row = final_row(str(cfg.get("task", "?")), exp, int(cfg.get("seed", 0)), rows)
+    row["run"] = run
+    return row
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (or metrics.csv files)")
+    p.add_argument("--out", required=True, metavar="FILE.png", help="output image")
+    p.add_argument("--labels", nargs="+", default=None,
+                   help="one label per RUN_DIR; runs with the same label are one group")
+    p.add_argument("--band", choices=["minmax", "std"], default="minmax",
+                   help="band around each group's mean: min-max over runs (default) or +-1 std")
+    p.add_argument("--title", default="", help="figure title")
+    p.add_argument("--max-wall", type=float, default=None, metavar="SECONDS",
+                   help="keep only the epochs that ended within this wall clock (s) of each run")
+    p.add_argument("--max-env-steps", type=float, default=None, metavar="N",
+                   help="keep only the epochs that ended within N env steps of each run")
+    p.add_argument("--table", default=None, metavar="FILE.csv",
+                   help="also write one row per run: final/best success, env steps and wall "
+                        "clock to 0.5 and 0.9, arm-contact rate (final.csv's columns + run)")
+    args = p.parse_args(argv)
+    if args.labels is not None and len(args.labels) != len(args.runs):
+        p.error(f"--labels: got {len(args.labels)} labels for {len(args.runs)} runs")
+    for name in ("max_wall", "max_env_steps"):
+        v = getattr(args, name)
+        if v is not None and not v > 0:
+            p.error(f"--{name.replace('_', '-')} must be > 0, got {v}")
+
+    from daddpg_jax.analysis.plotting import plot_runs, read_metrics, run_config, run_label, truncate
+
+    groups: dict = {}
+    table = []
+    for i, run in enumerate(args.runs):
+        try:
+            rows = read_metrics(run)
+        except (FileNotFoundError, ValueError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        rows = truncate(rows, args.max_wall, args.max_env_steps)
+        if not rows:
+            print(f"error: {run}: no epoch ended within the --max-wall/--max-env-steps budget",
+                  file=sys.stderr)
+            return 2
+        label = args.labels[i] if args.labels else run_label(run)
+        groups.setdefault(label, []).append(rows)
+        table.append((run, label, rows, run_config(run)))
+    out = plot_runs(groups, args.out, title=args.title, band=args.band)
+    if args.table:
+        import csv
+
+        from daddpg_jax.analysis.reproduce import FINAL_COLUMNS
+
+        with open(args.table, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=(*FINAL_COLUMNS, "run"))
+            w.writeheader()
+            w.writerows(_table_row(*t) for t in table)
+        print(f"wrote {os.path.abspath(args.table)}")
+    for label, runs in groups.items():
+        last = [float(r[-1]["test_success_rate"]) for r in runs]
+        print(f"{label}: {len(runs)} run(s), final test success {', '.join(f'{v:.2f}' for v in last)}")
+    print(f"wrote {os.path.abspath(out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

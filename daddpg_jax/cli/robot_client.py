@@ -1,0 +1,81 @@
+r"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
+service every control period, through the safety layer, and reports the success rate.
+
+Examples
+  python experiments/serve.py policy.npz &
+  python experiments/robot_client.py --server http://127.0.0.1:8000 --task reach --episodes 200
+  python experiments/robot_client.py --server http://127.0.0.1:8000 --episodes 50 \
+      --max-speed 0.5 --min-clearance 0.03 --json client.json
+
+The env settings (scene, dt, max_delta, workspace, goal region, threshold) come from the
+service's GET /info, i.e. from the exported run. No JAX is imported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="robot_client.py", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--server", default="http://127.0.0.1:8000", help="policy service URL")
+    p.add_argument("--task", default="reach", help="task (must match the served policy)")
+    p.add_argument("--episodes", type=int, default=100, help="episodes to run")
+    p.add_argument("--seed", type=int, default=0, help="seed of the NumPy goal sampler")
+    p.add_argument("--deadline-ms", type=float, default=None,
+                   help="hold both arms when the answer takes longer (default: one control period)")
+    p.add_argument("--max-speed", type=float, default=None,
+                   help="cap of each gripper target's speed, m/s (default: what the policy can "
+                        "command, sqrt(3)*max_delta/dt)")
+    p.add_argument("--min-clearance", type=float, default=None,
+                   help="refuse moves that bring the arms' link capsules closer, m (default: the "
+                        "env's arm_clearance)")
+    p.add_argument("--workspace-margin", type=float, default=0.0,
+                   help="shrink the workspace boxes on every side, m")
+    p.add_argument("--float64", action="store_true",
+                   help="step one float64 MjData (a plain simulator) instead of mirroring the "
+                        "trainer's C-engine bookkeeping exactly")
+    p.add_argument("--json", default=None, help="also write the summary to this JSON file")
+    args = p.parse_args(argv)
+
+    from daddpg_jax.deploy.robot import run_episodes
+    from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
+    from daddpg_jax.deploy.server import PolicyClient
+    from mjx_envs.numpy_env import NumpyDualArmEnv
+
+    try:
+        info = PolicyClient(args.server, timeout=5.0).info()
+    except (OSError, RuntimeError, ValueError) as e:
+        print(f"error: policy service at {args.server} not reachable: {e}", file=sys.stderr)
+        return 2
+    if info.get("task") != args.task:
+        print(f"error: the service serves a {info.get('task')!r} policy, not {args.task!r}",
+              file=sys.stderr)
+        return 2
+    env_settings = info["env"]
+    deadline = None if args.deadline_ms is None else args.deadline_ms / 1e3
+    limits = SafetyLimits.from_env(env_settings, max_speed=args.max_speed,
+                                   min_clearance=args.min_clearance, deadline_s=deadline,
+                                   margin=args.workspace_margin)
+    client = PolicyClient(args.server, timeout=max(limits.deadline_s, 0.001))
+    env = NumpyDualArmEnv(env_settings, task=args.task, exact=not args.float64)
+    t0 = time.perf_counter()
+    out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed)
+    out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=args.task,
+               algo=info.get("algo"), seed=args.seed, deadline_ms=limits.deadline_s * 1e3,
+               max_step_m=limits.max_step, min_clearance_m=limits.min_clearance)
+    print(json.dumps(out, indent=2))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
