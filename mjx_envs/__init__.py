@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import importlib
 
-TASKS = ("reach", "push", "pickup", "pot")
+from mjx_envs.settings import TASKS, default_config  # noqa: F401  (JAX-free)
 
 # task name -> env class, or (module, class name) until first use
 _REGISTRY: dict = {
@@ -25,8 +25,8 @@ _REGISTRY: dict = {
 _LAZY = {
     "DualArmEnv": ("mjx_envs.core", "DualArmEnv"),
     "State": ("mjx_envs.core", "State"),
-    "TaskConfig": ("mjx_envs.core", "TaskConfig"),
-    "replace_config": ("mjx_envs.core", "replace_config"),
+    "TaskConfig": ("mjx_envs.settings", "TaskConfig"),
+    "replace_config": ("mjx_envs.settings", "replace_config"),
     "Reach": ("mjx_envs.tasks.reach", "Reach"),
     "Push": ("mjx_envs.tasks.push", "Push"),
     "Pickup": ("mjx_envs.tasks.pickup", "Pickup"),
@@ -71,15 +71,11 @@ def make(task: str, physics: str = "auto", **overrides) -> "DualArmEnv":
         raise ValueError(f"unknown task {task!r}; available: {known}")
     if physics not in ("auto", "mjx", "c"):
         raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
-    from mjx_envs.core import replace_config
+    from mjx_envs.settings import replace_config
 
     cls = _task_class(task)
     cfg = replace_config(cls.default_config(), **overrides)
     return cls(cfg, physics=physics)
-
-
-def default_config(task: str) -> "TaskConfig":
-    return _task_class(task).default_config()
 
 
 __all__ = ["make", "default_config", "register", "State", "TaskConfig", "DualArmEnv", "TASKS"]

@@ -26,7 +26,9 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs.physics.backends import make_backend, default_physics
+from mjx_envs import settings
+from mjx_envs.physics.backends import default_physics, make_backend
+from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 NUM_ARMS = 2
@@ -44,62 +46,6 @@ class State:
     info: dict[str, jax.Array]
 
 
-@dataclasses.dataclass(frozen=True)
-class TaskConfig:
-    """Settings of a task; each task's ``default_config()`` fills them in.
-
-    Every field can be overridden through ``mjx_envs.make(task, **overrides)``.
-    """
-
-    scene: str = "scene_reach.xml"
-    """MJCF scene file in ``assets/``."""
-    episode_length: int = 50
-    """Control steps per episode (fixed; no early termination)."""
-    n_substeps: int = 4
-    """Physics steps per control step."""
-    timestep: float = 0.01
-    """Physics timestep, seconds (overrides the MJCF option)."""
-    cone: str = "elliptic"
-    """Friction cone ('elliptic' holds grasps better; 'pyramidal' where a scene has no contacts:
-    MJX 3.17's elliptic solver fails on a model without contacts)."""
-    max_delta: float = 0.05
-    """Largest move of a gripper target per control step along each axis, metres."""
-    lock_fingers: bool = True
-    """Ignore the finger command and hold the fingers at ``locked_opening``."""
-    locked_opening: float = 0.0
-    """Finger opening while locked, metres."""
-    finger_stroke: float = 0.04
-    """Opening of one finger at command +1, metres."""
-    distance_threshold: float = 0.02
-    """Success radius of each arm's achieved goal, metres."""
-    goal_scale: float = 1.0
-    """Scale of the per-arm goal term -(d_i >= threshold)."""
-    team_scale: float = 0.0
-    """Scale of the team term: -team_scale for both arms unless every arm succeeds."""
-    arm_contact_penalty: float = 0.0
-    """Per-arm penalty when the arms come closer than ``arm_clearance`` (goal-independent)."""
-    arm_clearance: float = 0.01
-    """Surface gap between the arms' link capsules under which ``arm_contact`` is set, metres."""
-    workspace_low: tuple = ((0.12, -0.14, 0.41), (0.12, -0.36, 0.41))
-    """Lower corner of each arm's target box (left, right), world metres."""
-    workspace_high: tuple = ((0.40, 0.36, 0.65), (0.40, 0.14, 0.65))
-    """Upper corner of each arm's target box (left, right), world metres."""
-    goal_low: tuple = ((0.18, -0.08, 0.43), (0.18, -0.30, 0.43))
-    """Lower corner of each arm's goal region (reach)."""
-    goal_high: tuple = ((0.34, 0.30, 0.60), (0.34, 0.08, 0.60))
-    """Upper corner of each arm's goal region (reach)."""
-
-
-def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:
-    """``dataclasses.replace`` with a clear error for unknown fields."""
-    names = {f.name for f in dataclasses.fields(cfg)}
-    unknown = sorted(set(overrides) - names)
-    if unknown:
-        raise ValueError(f"unknown config field(s) {unknown} for {type(cfg).__name__}; "
-                         f"valid: {sorted(names)}")
-    return dataclasses.replace(cfg, **overrides)
-
-
 class DualArmEnv:
     """Two UR3 arms with grippers; subclasses choose goals, objects and achieved goals."""
 
@@ -112,7 +58,8 @@ class DualArmEnv:
 
     @classmethod
     def default_config(cls) -> TaskConfig:
-        return TaskConfig()
+        """The task's settings from `mjx_envs.settings`."""
+        return settings.default_config(cls.task_name)
 
     def __init__(self, config: TaskConfig | None = None, physics: str = "auto"):
         self.config = config or self.default_config()

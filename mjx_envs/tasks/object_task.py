@@ -4,30 +4,13 @@ points (one per arm) at fixed offsets in the object frame, goals from one sample
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_envs.core import DualArmEnv, TaskConfig
-
-
-@dataclasses.dataclass(frozen=True)
-class ObjectTaskConfig(TaskConfig):
-    """TaskConfig plus the ranges of the object's initial and goal poses."""
-
-    init_low: tuple = (0.245, -0.005, -0.10)
-    """Lower bound of the object's initial pose on the table: (x, y, yaw) in m, m, rad."""
-    init_high: tuple = (0.255, 0.005, 0.10)
-    """Upper bound of the object's initial pose on the table."""
-    target_low: tuple = (0.25, 0.0, 0.0, -0.15)
-    """Lower bound of the goal pose of the object: (x, y, height above its resting height, yaw)."""
-    target_high: tuple = (0.25, 0.0, 0.0, 0.15)
-    """Upper bound of the goal pose of the object."""
-    target_radius: tuple = (0.0, 0.0)
-    """(min, max) length of an extra horizontal offset of the goal pose in a uniformly random
-    direction: keeps goals on the table away from the initial pose (push)."""
+from mjx_envs import settings
+from mjx_envs.core import DualArmEnv
+from mjx_envs.settings import ObjectTaskConfig  # noqa: F401  (re-exported)
 
 
 def yaw_quat(yaw):
@@ -44,14 +27,12 @@ def object_points(pos, yaw, offsets):
 
 
 class ObjectPoseTask(DualArmEnv):
-    """An object with a free joint named ``object_joint``; goals from one sampled object pose."""
-
-    object_joint = "bar"
-    object_body = "bar"
-    point_sites = ("end_l", "end_r")
+    """An object with a free joint; goals from one sampled object pose. The joint, body and the
+    two object-point sites are the task's entry of `mjx_envs.settings.OBJECTS`."""
 
     def __init__(self, config=None, physics="auto"):
         super().__init__(config, physics)
+        self.object_joint, self.object_body, self.point_sites = settings.OBJECTS[self.task_name]
         m = self.mj_model
         self._obj_qadr = int(m.jnt_qposadr[m.joint(self.object_joint).id])
         self._rest_z = float(self._home_qpos[self._obj_qadr + 2])

@@ -11,29 +11,9 @@ sampled bar pose 0.05-0.15 m above the bar's resting height; success when both e
 
 from __future__ import annotations
 
-from mjx_envs.tasks.object_task import ObjectPoseTask, ObjectTaskConfig
+from mjx_envs.tasks.object_task import ObjectPoseTask
 
 
 class Pickup(ObjectPoseTask):
     task_name = "pickup"
 
-    @classmethod
-    def default_config(cls) -> ObjectTaskConfig:
-        return ObjectTaskConfig(
-            scene="scene_pickup.xml",
-            distance_threshold=0.05,
-            lock_fingers=False,
-            cone="elliptic",
-            timestep=0.005,
-            n_substeps=8,
-            goal_scale=1.0,
-            team_scale=0.0,
-            arm_contact_penalty=0.0,
-            init_low=(0.23, -0.02, -0.10),
-            init_high=(0.27, 0.02, 0.10),
-            # bar centre (x, y, height above its resting height, yaw): the grippers keep a fixed
-            # downward orientation, so the goal yaw stays small (+-0.1 rad moves an end by 0.013 m)
-            target_low=(0.22, -0.03, 0.05, -0.10),
-            target_high=(0.28, 0.03, 0.15, 0.10),
-            target_radius=(0.0, 0.0),
-        )

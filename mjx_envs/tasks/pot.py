@@ -9,31 +9,9 @@ pushing: the pot must be lifted. Success when both handles are within 0.05 m. Fi
 
 from __future__ import annotations
 
-from mjx_envs.tasks.object_task import ObjectPoseTask, ObjectTaskConfig
+from mjx_envs.tasks.object_task import ObjectPoseTask
 
 
 class Pot(ObjectPoseTask):
     task_name = "pot"
-    object_joint = "pot"
-    object_body = "pot"
-    point_sites = ("handle_l", "handle_r")
 
-    @classmethod
-    def default_config(cls) -> ObjectTaskConfig:
-        return ObjectTaskConfig(
-            scene="scene_pot.xml",
-            distance_threshold=0.05,
-            lock_fingers=False,
-            cone="elliptic",
-            timestep=0.005,
-            n_substeps=8,
-            goal_scale=1.0,
-            team_scale=0.0,
-            arm_contact_penalty=0.0,
-            init_low=(0.23, -0.02, -0.05),
-            init_high=(0.27, 0.02, 0.05),
-            # pot centre (x, y, height above its resting height, yaw)
-            target_low=(0.22, -0.03, 0.05, 0.0),
-            target_high=(0.28, 0.03, 0.12, 0.0),
-            target_radius=(0.0, 0.0),
-        )

@@ -11,16 +11,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_envs.core import DualArmEnv, TaskConfig
+from mjx_envs.core import DualArmEnv
 
 
 class Reach(DualArmEnv):
     task_name = "reach"
 
-    @classmethod
-    def default_config(cls) -> TaskConfig:
-        return TaskConfig(scene="scene_reach.xml", distance_threshold=0.02, lock_fingers=True,
-                          cone="pyramidal")
 
     def _sample_goal(self, key):
         lo = jnp.asarray(np.asarray(self.config.goal_low, np.float32))

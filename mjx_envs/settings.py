@@ -1,0 +1,168 @@
+"""Every task's settings, as plain data, in one place (standard library only: no JAX, NumPy or
+MuJoCo at import).
+
+`TaskConfig` holds the fields every task has; `ObjectTaskConfig` adds the object's initial and
+goal pose ranges (push, pickup, pot). `TASK_SETTINGS` holds each task's values; the JAX env
+(`mjx_envs.make`), the NumPy simulator (`mjx_envs.numpy_env`), the Gymnasium adapter
+(`mjx_envs.gym_env`) and the robot client all read them from here. Fields are declared with
+`mjx_envs.schema.spec`: type, valid range and docstring, used by validation and ``--help``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from mjx_envs.schema import ConfigError, finalize, fields, from_dict, spec
+
+TASKS = ("reach", "push", "pickup", "pot")
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """Settings of a task (reach uses exactly these; object tasks add `ObjectTaskConfig`'s)."""
+
+    scene: str = spec("scene_reach.xml", "MJCF scene file in assets/", nonempty=True)
+    episode_length: int = spec(50, "control steps per episode (fixed; no early termination)",
+                               low=2)
+    n_substeps: int = spec(4, "physics steps per control step", low=1)
+    timestep: float = spec(0.01, "physics timestep, seconds (overrides the MJCF option)",
+                           low=0.0, low_open=True)
+    cone: str = spec("elliptic", "friction cone: 'elliptic' holds grasps better; 'pyramidal' "
+                     "where a scene has no contacts (MJX 3.17's elliptic solver fails on a "
+                     "model without contacts)", choices=("elliptic", "pyramidal"))
+    max_delta: float = spec(0.05, "largest move of a gripper target per control step along "
+                            "each axis, metres", low=0.0, low_open=True)
+    lock_fingers: bool = spec(True, "ignore the finger command and hold the fingers at "
+                              "locked_opening")
+    locked_opening: float = spec(0.0, "finger opening while locked, metres", low=0.0)
+    finger_stroke: float = spec(0.04, "opening of one finger at command +1, metres", low=0.0)
+    distance_threshold: float = spec(0.02, "success radius of each arm's achieved goal, "
+                                     "metres", low=0.0, low_open=True)
+    goal_scale: float = spec(1.0, "scale of the per-arm goal term -(d_i >= threshold)",
+                             low=0.0)
+    team_scale: float = spec(0.0, "scale of the team term: -team_scale for both arms unless "
+                             "every arm succeeds", low=0.0)
+    arm_contact_penalty: float = spec(0.0, "per-arm penalty when the arms come closer than "
+                                      "arm_clearance (goal-independent)", low=0.0)
+    arm_clearance: float = spec(0.01, "surface gap between the arms' link capsules under which "
+                                "arm_contact is set, metres", low=0.0)
+    workspace_low: tuple = spec(((0.12, -0.14, 0.41), (0.12, -0.36, 0.41)),
+                                "lower corner of each arm's target box (left, right), world "
+                                "metres", length=(2, 3))
+    workspace_high: tuple = spec(((0.40, 0.36, 0.65), (0.40, 0.14, 0.65)),
+                                 "upper corner of each arm's target box (left, right), world "
+                                 "metres", length=(2, 3))
+    goal_low: tuple = spec(((0.18, -0.08, 0.43), (0.18, -0.30, 0.43)),
+                           "lower corner of each arm's goal region (reach)", length=(2, 3))
+    goal_high: tuple = spec(((0.34, 0.30, 0.60), (0.34, 0.08, 0.60)),
+                            "upper corner of each arm's goal region (reach)", length=(2, 3))
+
+    def __post_init__(self):
+        finalize(self)
+        for lo, hi in (("workspace_low", "workspace_high"), ("goal_low", "goal_high")):
+            _check_ordered(self, lo, hi)
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectTaskConfig(TaskConfig):
+    """`TaskConfig` plus the ranges of the object's initial and goal poses."""
+
+    init_low: tuple = spec((0.245, -0.005, -0.10), "lower bound of the object's initial pose "
+                           "on the table: (x, y, yaw) in m, m, rad", length=3)
+    init_high: tuple = spec((0.255, 0.005, 0.10), "upper bound of the object's initial pose "
+                            "on the table", length=3)
+    target_low: tuple = spec((0.25, 0.0, 0.0, -0.15), "lower bound of the object's goal pose: "
+                             "(x, y, height above its resting height, yaw)", length=4)
+    target_high: tuple = spec((0.25, 0.0, 0.0, 0.15), "upper bound of the object's goal pose",
+                              length=4)
+    target_radius: tuple = spec((0.0, 0.0), "(min, max) length of an extra horizontal offset "
+                                "of the goal pose in a uniformly random direction: keeps goals "
+                                "on the table away from the initial pose (push)", length=2,
+                                low=0.0)
+
+    def __post_init__(self):
+        super().__post_init__()
+        for lo, hi in (("init_low", "init_high"), ("target_low", "target_high")):
+            _check_ordered(self, lo, hi)
+        if self.target_radius[0] > self.target_radius[1]:
+            raise ConfigError(f"target_radius must be (min, max), got {self.target_radius!r}")
+
+
+def _flat(v):
+    return [y for x in v for y in (_flat(x) if isinstance(x, tuple) else [x])]
+
+
+def _check_ordered(cfg, lo: str, hi: str) -> None:
+    if any(a > b for a, b in zip(_flat(getattr(cfg, lo)), _flat(getattr(cfg, hi)))):
+        raise ConfigError(f"{lo} must not exceed {hi} ({getattr(cfg, lo)!r} > "
+                          f"{getattr(cfg, hi)!r})")
+
+
+# Contact tasks: a 0.005 s timestep (contacts at 0.01 s tunnel and eject the bar at 1.25 m/s
+# pushes) with 8 substeps keeps the control period at 0.04 s; success radius 0.05 m (paper 4.1).
+_CONTACT = dict(cone="elliptic", timestep=0.005, n_substeps=8, distance_threshold=0.05)
+
+TASK_SETTINGS: dict[str, TaskConfig] = {
+    "reach": TaskConfig(scene="scene_reach.xml", distance_threshold=0.02, lock_fingers=True,
+                        cone="pyramidal"),
+    # bar centre within 5 mm of (0.25, 0), yaw +-0.1 rad; the goal pose lies 0.06-0.08 m away in
+    # any direction with yaw +-0.15 rad, so no episode starts solved (the mean of the two end
+    # displacements is the centre displacement, >= 0.053 m > threshold). Fingers locked half
+    # open: a 0.05 m gap straddles the 0.03 m neck and never squeezes it.
+    "push": ObjectTaskConfig(
+        scene="scene_push.xml", **_CONTACT, lock_fingers=True, locked_opening=0.025,
+        init_low=(0.245, -0.005, -0.10), init_high=(0.255, 0.005, 0.10),
+        target_low=(0.25, 0.0, 0.0, -0.15), target_high=(0.25, 0.0, 0.0, 0.15),
+        target_radius=(0.06, 0.08)),
+    # goal: bar centre (x, y, height above its resting height, yaw); the grippers keep a fixed
+    # downward orientation, so the goal yaw stays small (+-0.1 rad moves an end by 0.013 m)
+    "pickup": ObjectTaskConfig(
+        scene="scene_pickup.xml", **_CONTACT, lock_fingers=False,
+        init_low=(0.23, -0.02, -0.10), init_high=(0.27, 0.02, 0.10),
+        target_low=(0.22, -0.03, 0.05, -0.10), target_high=(0.28, 0.03, 0.15, 0.10),
+        target_radius=(0.0, 0.0)),
+    # goal: pot centre (x, y, height above its resting height, yaw), upright
+    "pot": ObjectTaskConfig(
+        scene="scene_pot.xml", **_CONTACT, lock_fingers=False,
+        init_low=(0.23, -0.02, -0.05), init_high=(0.27, 0.02, 0.05),
+        target_low=(0.22, -0.03, 0.05, 0.0), target_high=(0.28, 0.03, 0.12, 0.0),
+        target_radius=(0.0, 0.0)),
+}
+
+# Object tasks: (free joint, body, the two object-point sites: left arm's first).
+OBJECTS: dict[str, tuple[str, str, tuple[str, str]]] = {
+    "push": ("bar", "bar", ("end_l", "end_r")),
+    "pickup": ("bar", "bar", ("end_l", "end_r")),
+    "pot": ("pot", "pot", ("handle_l", "handle_r")),
+}
+
+
+def check_task(task: str) -> None:
+    if task not in TASK_SETTINGS:
+        raise ValueError(f"unknown task {task!r}; available: {sorted(TASK_SETTINGS)}")
+
+
+def default_config(task: str) -> TaskConfig:
+    """The task's settings (a frozen dataclass)."""
+    check_task(task)
+    return TASK_SETTINGS[task]
+
+
+def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:
+    """``dataclasses.replace`` with a clear error for unknown fields; values are validated."""
+    names = fields(cfg)
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ConfigError(f"unknown config field(s) {unknown} for {type(cfg).__name__}; "
+                          f"valid: {sorted(names)}")
+    return dataclasses.replace(cfg, **overrides)
+
+
+def task_config(task: str, **overrides) -> TaskConfig:
+    """The task's settings with `overrides` applied (lists from JSON become tuples)."""
+    return replace_config(default_config(task), **overrides)
+
+
+def config_from_dict(task: str, d: dict) -> TaskConfig:
+    """The task's config class filled from a JSON dict (e.g. a policy export's settings)."""
+    return from_dict(type(default_config(task)), d)
