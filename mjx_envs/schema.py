@@ -63,7 +63,7 @@ def _kind(cls, name: str):
     hints = typing.get_type_hints(cls)
     t = hints[name]
     origin = typing.get_origin(t)
-    if origin is tuple:
+    if t is tuple or origin is tuple:
         return tuple
     if t in (bool, int, float, str):
         return t
@@ -213,22 +213,12 @@ def to_dict(obj) -> dict:
     return {k: plain(v) for k, v in dataclasses.asdict(obj).items()}
 
 
-def help_lines(cls, values: dict | None = None, indent: str = "  ", names=None) -> list[str]:
-    """One '--help' line per field: name (value): docstring. `values` gives the values to show
-    (default: the dataclass defaults)."""
-    out = []
-    for name, f in fields(cls).items():
-        if names is not None and name not in names:
-            continue
-        v = (values or {}).get(name, f.default)
-        out.append(f"{indent}{name} ({describe_value(v)}): {_meta(f).get('doc', '')}")
-    return out
-
-
 def describe_value(v) -> str:
+    """A value as written on the command line (what `parse` reads back)."""
     if isinstance(v, tuple):
-        return ",".join(describe_value(x) for x in v) if not any(
-            isinstance(x, tuple) for x in v) else repr(v)
+        if any(isinstance(x, tuple) for x in v):
+            return ",".join(f"({describe_value(x)})" for x in v)
+        return ",".join(describe_value(x) for x in v)
     if isinstance(v, bool):
         return "true" if v else "false"
     return str(v)

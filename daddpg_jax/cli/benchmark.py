@@ -64,10 +64,15 @@ def main(argv=None):
     import mjx_envs
     from daddpg_jax.analysis import benchmark as bm
     from daddpg_jax.algo.config import TrainConfig, preset
-    from mjx_envs.core import TaskConfig
+    from mjx_envs import schema, settings
 
-    sets = bm.parse_overrides(args.set, TrainConfig, "--set")
-    env_over = bm.parse_overrides(args.env, TaskConfig, "--env")
+    try:
+        sets = schema.parse_overrides(TrainConfig, args.set, "--set")
+        # fields of any task (the object tasks' config holds every field)
+        env_over = schema.parse_overrides(type(settings.default_config("push")), args.env,
+                                          "--env")
+    except schema.ConfigError as e:
+        p.error(str(e))
     backend = jax.default_backend()
     device = args.device or ("cpu" if backend == "cpu" else "gpu")
     machine = bm.machine_description()

@@ -1,6 +1,7 @@
 """Render a task's scene at its start state to a PNG (headless: MUJOCO_GL=egl).
 
-Example: MUJOCO_GL=egl python experiments/render_scene.py --task reach --out docs/scene_reach.png
+Example: MUJOCO_GL=egl daddpg-render --task reach --out docs/scene_reach.png
+(or python experiments/render_scene.py ...)
 """
 
 import argparse
@@ -9,14 +10,14 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
-def main():
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="reach", help="task whose scene to render (reach, push, pickup, pot)")
     p.add_argument("--out", default="docs/scene_reach.png", help="output PNG path")
     p.add_argument("--seed", type=int, default=0, help="seed of the reset (goal markers)")
     p.add_argument("--width", type=int, default=960, help="image width, pixels")
     p.add_argument("--height", type=int, default=720, help="image height, pixels")
-    args = p.parse_args()
+    args = p.parse_args(argv)
 
     import imageio.v3 as iio
     import jax
@@ -29,7 +30,8 @@ def main():
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     iio.imwrite(args.out, img)
     print(f"wrote {args.out} ({img.shape[1]}x{img.shape[0]})")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

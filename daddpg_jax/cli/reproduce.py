@@ -54,16 +54,16 @@ def main(argv=None) -> int:
     if args.first_seed < 0:
         p.error("--first-seed must be >= 0")
 
-    import mjx_envs
-    from daddpg_jax.running.overrides import parse_overrides
     from daddpg_jax.algo.config import TrainConfig
     from daddpg_jax.analysis.reproduce import run_set
+    from mjx_envs import schema, settings
 
-    tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    ecfg = mjx_envs.default_config(args.task)
-    edef = {f.name: getattr(ecfg, f.name) for f in dataclasses.fields(ecfg)}
-    overrides = parse_overrides(args.set, tdef, "--set")
-    env_over = parse_overrides(args.env, edef, "--env")
+    try:
+        overrides = schema.parse_overrides(TrainConfig, args.set, "--set")
+        env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
+                                          "--env")
+    except schema.ConfigError as e:
+        p.error(str(e))
     summary = run_set(args.task, args.out, seeds=args.seeds, algos=args.algo,
                       ablations=args.ablations, env_steps=args.env_steps,
                       budget_minutes=args.budget_minutes, num_envs=args.num_envs,

@@ -1,155 +1,235 @@
 """Train two cooperating UR3 arms with DADDPG + HER (or a baseline variant).
 
 Examples
-  python experiments/run.py --task reach                       # CPU defaults, a few minutes
-  python experiments/run.py --task reach --num-envs 2048       # the accelerator-sized run
-  python experiments/run.py --task push --algo maddpg --her final --out runs/push_maddpg
-  python experiments/run.py --resume runs/push_maddpg --epochs 200   # continue to 200 epochs
-  python experiments/run.py --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
-  python experiments/run.py --task pickup --demos 100          # + 100 scripted demonstrations
+  daddpg-train --task reach                          # the task's preset for this device
+  daddpg-train --task reach --num-envs 2048          # the accelerator-sized run
+  daddpg-train --task push --algo maddpg --her final --out runs/push_maddpg
+  daddpg-train --resume runs/push_maddpg --epochs 200   # continue to 200 epochs
+  daddpg-train --config runs/push_maddpg/config.json --seed 1   # rerun a recorded config
+  daddpg-train --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
+  daddpg-train --task pickup --demos 100             # + 100 scripted demonstrations
+(`python experiments/run.py ...` is the same command.)
 
 Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch}.
-The per-task preset (docs/TRAINING.md) scales batch size and updates per cycle with --num-envs
-so that the replay ratio stays near the HER baselines'; --set overrides any field after it.
+The per-task preset (docs/TRAINING.md) depends on --num-envs and the device: batch size and
+updates per cycle scale with num_envs so that the replay ratio stays near the HER baselines';
+on an accelerator it also picks MJX physics and cycles per epoch. --set overrides any field.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
+import textwrap
 import time
 
+from daddpg_jax.algo.config import (DEVICES, HER_MODES, PHYSICS, TrainConfig, build_config,
+                                     preset)
+from daddpg_jax.algo.variants import ALGOS, VARIANTS
+from mjx_envs import schema, settings
+from mjx_envs.schema import ConfigError
+
+# flags that are also TrainConfig fields: flag attribute -> field
+_FIELD_FLAGS = ("algo", "her", "physics", "seed")
 
 
-def build_parser():
-    from daddpg_jax.running.overrides import field_docs as _field_docs
-    from daddpg_jax.algo.config import TrainConfig
-    from mjx_envs.core import TaskConfig
-    from mjx_envs.tasks.push import ObjectTaskConfig
+def help_epilog(device: str) -> str:
+    """The field listing of --help: every training field with its value for each task at the
+    default num_envs on `device`, and every env field with each task's value."""
+    tasks = settings.TASKS
+    cfgs = {t: build_config(t, device=device) for t in tasks}
+    envs = {t: settings.default_config(t) for t in tasks}
+    head = " | ".join(tasks)
+    out = [f"training fields for --set KEY=VALUE (value for {head} at the default --num-envs "
+           f"on {device}; meaning):"]
+    out += _field_lines(TrainConfig, cfgs)
+    out += ["", f"env fields for --env KEY=VALUE (value for {head}, '-' where a task lacks "
+            "the field; meaning):"]
+    out += _field_lines(type(envs["push"]), envs)
+    return "\n".join(out)
 
-    tdocs, edocs = _field_docs(TrainConfig), _field_docs(TaskConfig)
-    odocs = _field_docs(ObjectTaskConfig)
-    tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    edef = {f.name: f.default for f in dataclasses.fields(TaskConfig)}
-    odef = {f.name: f.default for f in dataclasses.fields(ObjectTaskConfig) if f.name not in edef}
-    epilog = ["training fields for --set KEY=VALUE (default; meaning):"]
-    epilog += [f"  {k} ({tdef[k]!r}): {tdocs.get(k, '')}" for k in tdef]
-    epilog += ["", "env fields for --env KEY=VALUE (reach default; meaning):"]
-    epilog += [f"  {k} ({edef[k]!r}): {edocs.get(k, '')}" for k in edef]
-    epilog += ["", "additional env fields of push, pickup and pot (push default; meaning):"]
-    epilog += [f"  {k} ({odef[k]!r}): {odocs.get(k, '')}" for k in odef]
+
+def _field_lines(cls, objs: dict) -> list:
+    docs = schema.docs(cls)
+    lines = []
+    for name in schema.fields(cls):
+        vals = [schema.describe_value(getattr(o, name)) if hasattr(o, name) else "-"
+                for o in objs.values()]
+        shown = vals[0] if len(set(vals)) == 1 else " | ".join(vals)
+        lines.append(textwrap.fill(f"{name} ({shown}): {docs[name]}", width=100,
+                                   initial_indent="  ", subsequent_indent="      ",
+                                   break_on_hyphens=False, break_long_words=False))
+    return lines
+
+
+def build_parser(device: str | None = None):
+    from daddpg_jax.algo.config import current_device
+
+    device = device or current_device()
     p = argparse.ArgumentParser(
-        prog="run.py", description=__doc__, epilog="\n".join(epilog),
+        prog="daddpg-train", description=__doc__, epilog=help_epilog(device),
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", choices=["reach", "push", "pickup", "pot"], default=None,
-                   help="task to train (default reach; taken from config.json with --resume)")
+    p.add_argument("--task", choices=settings.TASKS, default=None,
+                   help="task to train (default reach; taken from config.json with --resume "
+                        "or --config)")
     p.add_argument("--num-envs", type=int, default=None,
-                   help="parallel environments; the task preset scales batch size and updates per "
-                        "cycle with it (default: the preset's, 2 on CPU)")
+                   help="parallel environments; the task preset scales batch size and updates "
+                        "per cycle with it (default: the preset's: 2 on a CPU, 4096 on an "
+                        "accelerator)")
+    p.add_argument("--device", choices=DEVICES, default=None,
+                   help=f"device whose preset to use (default: the one JAX runs on, {device})")
     p.add_argument("--epochs", type=int, default=None,
-                   help="total epochs (an epoch = n_cycles cycles + evaluation); with --resume the "
-                        "run continues until this many epochs are done (default: the task preset)")
+                   help="total epochs (an epoch = n_cycles cycles + evaluation); with --resume "
+                        "the run continues until this many epochs are done (default: preset)")
     p.add_argument("--seed", type=int, default=None, help="training seed (default 0)")
-    p.add_argument("--algo", choices=["daddpg", "maddpg", "ddpg", "single"], default=None,
-                   help="daddpg: actors see both arms (the paper); maddpg: actors see their own arm, "
-                        "critics both; ddpg: independent arms; single: one agent, 8-d action")
-    p.add_argument("--her", choices=["future", "final", "none"], default=None,
+    p.add_argument("--algo", choices=ALGOS, default=None,
+                   help="; ".join(f"{v.name}: {v.doc}" for v in VARIANTS.values()))
+    p.add_argument("--her", choices=HER_MODES, default=None,
                    help="hindsight relabelling strategy (future uses k=4: 80%% relabelled)")
-    p.add_argument("--physics", choices=["auto", "mjx", "c"], default=None,
+    p.add_argument("--physics", choices=PHYSICS, default=None,
                    help="physics engine: auto = MJX on an accelerator, MuJoCo C engine on CPU")
     p.add_argument("--out", default=None,
                    help="run directory (default runs/<task>_<algo>_s<seed>_<time>)")
     p.add_argument("--resume", metavar="RUN_DIR", default=None,
-                   help="continue the run in RUN_DIR from its latest checkpoint (its config.json "
-                        "is reused; --epochs may raise the total)")
+                   help="continue the run in RUN_DIR from its latest checkpoint (its "
+                        "config.json is reused; --epochs may raise the total)")
+    p.add_argument("--config", metavar="CONFIG_JSON", default=None,
+                   help="start a new run from a recorded configuration (RUN/config.json or "
+                        "RUN): its training fields and env overrides; flags given with it "
+                        "override them")
     p.add_argument("--save-buffer", action="store_true",
-                   help="store the replay buffer in checkpoints (large; makes --resume bit-exact)")
+                   help="store the replay buffer in checkpoints (large; makes --resume "
+                        "bit-exact)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="override any training field (listed below); repeatable")
     p.add_argument("--env", action="append", metavar="KEY=VALUE", default=[],
-                   help="override any env field of the task's default_config() (listed below); repeatable")
+                   help="override any env field of the task (listed below); repeatable")
     p.add_argument("--demos", type=int, default=None, metavar="N",
-                   help="play N episodes of the task's scripted controller at the start and train "
-                        "on them beside the replay, with a behaviour-cloning term (push, pickup, "
-                        "pot; not in the paper; same as --set n_demos=N; default 0 = off; "
-                        "docs/TRAINING.md#demonstrations)")
+                   help="play N episodes of the task's scripted controller at the start and "
+                        "train on them beside the replay, with a behaviour-cloning term (push, "
+                        "pickup, pot; not in the paper; same as --set n_demos=N; default 0 = "
+                        "off; docs/TRAINING.md#demonstrations)")
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="stop after the epoch during which this much wall time has passed")
     p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
     return p
 
 
-def _env_overrides(items, task: str) -> dict:
-    """--env KEY=VALUE items checked against the fields of the task's default_config()."""
-    import mjx_envs
-    from daddpg_jax.running.overrides import parse_overrides
-
-    defaults = {f.name: getattr(mjx_envs.default_config(task), f.name)
-                for f in dataclasses.fields(mjx_envs.default_config(task))}
-    return parse_overrides(items, defaults, "--env")
-
-
-def main(argv=None):
-    parser = build_parser()
-    args = parser.parse_args(argv)
-
+def _recorded(path: str):
+    """(TrainConfig, env overrides) of a config.json (or of a run directory holding one)."""
     from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.overrides import parse_overrides as _kv
-    from daddpg_jax.algo.config import TrainConfig, preset
-    from daddpg_jax.running.runner import NonFiniteLoss, train
-    import mjx_envs
 
-    tdef = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    sets = _kv(args.set, tdef, "--set")
+    run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
+    if not os.path.exists(os.path.join(run_dir, "config.json")):
+        raise ConfigError(f"{path}: no config.json there")
+    cfg, payload = ckpt.load_config(run_dir)
+    return cfg, dict(payload.get("env_overrides", {}))
+
+
+def resolve(args, parser):
+    """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError."""
+    if args.resume and args.config:
+        raise ConfigError("--resume and --config exclude each other")
     if args.resume:
-        run_dir = args.resume
-        if not os.path.exists(os.path.join(run_dir, "config.json")):
-            parser.error(f"--resume: {run_dir}/config.json not found")
-        cfg, payload = ckpt.load_config(run_dir)
-        env_over = {**payload.get("env_overrides", {}), **_env_overrides(args.env, cfg.task)}
-        for name in ("task", "num_envs", "algo", "her", "physics", "seed"):
+        cfg, env_over = _recorded(args.resume)
+        for name in ("task", "num_envs", *_FIELD_FLAGS):
             v = getattr(args, name)
             if v is not None and v != getattr(cfg, name):
-                parser.error(f"--resume: --{name.replace('_', '-')} differs from the run's "
-                             f"config ({getattr(cfg, name)!r}); start a new run instead")
-        over = dict(sets)
+                raise ConfigError(f"--resume: --{name.replace('_', '-')} differs from the run's "
+                                  f"config ({getattr(cfg, name)!r}); start a new run instead")
+        if args.demos is not None and args.demos != cfg.n_demos:
+            raise ConfigError(f"--resume: --demos differs from the run's config "
+                              f"({cfg.n_demos}); start a new run instead")
+        run_dir = args.resume
+    elif args.config:
+        cfg, env_over = _recorded(args.config)
+        if args.task is not None or args.num_envs is not None:
+            # a new task or size: that preset's fields replace the recorded ones
+            cfg = cfg.replace(**preset(args.task or cfg.task, args.num_envs or cfg.num_envs,
+                                       device=args.device))
+        run_dir = None
     else:
-        task = args.task or "reach"
-        env_over = _env_overrides(args.env, task)
-        over = preset(task, args.num_envs)
-        for name in ("algo", "her", "physics", "seed"):
-            v = getattr(args, name)
-            if v is not None:
-                over[name] = v
-        over.update(sets)
-        try:
-            cfg = TrainConfig(**over)
-        except ValueError as e:
-            parser.error(str(e))
-        run_dir = args.out or os.path.join(
-            "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
-        over = {}
+        cfg, env_over = build_config(args.task or "reach", args.num_envs, device=args.device), {}
+        run_dir = None
+    over = {k: getattr(args, k) for k in _FIELD_FLAGS if getattr(args, k) is not None}
+    over.update(schema.parse_overrides(TrainConfig, args.set, "--set"))
     if args.epochs is not None:
         over["n_epochs"] = args.epochs
     if args.save_buffer:
         over["save_buffer"] = True
     if args.demos is not None:
-        if args.resume and args.demos != cfg.n_demos:
-            parser.error(f"--resume: --demos differs from the run's config ({cfg.n_demos}); "
-                         "start a new run instead")
         over["n_demos"] = args.demos
-    try:
-        cfg = cfg.replace(**over)
-    except ValueError as e:
-        parser.error(str(e))
+    cfg = cfg.replace(**over)
+    env_cls = type(settings.default_config(cfg.task))
+    env_over.update(schema.parse_overrides(env_cls, args.env, "--env"))
+    settings.task_config(cfg.task, **env_over)   # validates the env fields together
     if cfg.n_demos > 0:
         from mjx_envs.tasks import scripted
 
         if cfg.task not in scripted.POLICIES:
-            parser.error(f"--demos: task {cfg.task!r} has no scripted controller "
-                         f"(available: {', '.join(sorted(scripted.POLICIES))})")
+            raise ConfigError(f"--demos: task {cfg.task!r} has no scripted controller "
+                              f"(available: {', '.join(sorted(scripted.POLICIES))})")
+    run_dir = run_dir or args.out or os.path.join(
+        "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+    return cfg, env_over, run_dir
+
+
+class Progress:
+    """The progress bar: ticks once per cycle (train success, env steps/s) and, in long cycles
+    (>= 200 updates), 10 times during the updates."""
+
+    def __init__(self, cfg: TrainConfig, episode_length: int):
+        from tqdm import tqdm
+
+        self.cfg = cfg
+        self.bar = tqdm(total=cfg.n_epochs * cfg.n_cycles, unit="cycle", dynamic_ncols=True,
+                        desc=f"{cfg.task}/{cfg.algo}")
+        self.steps_per_cycle = cfg.num_envs * episode_length
+        self.update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
+        self.t_last = time.perf_counter()
+        self.partial = 0.0   # fraction of the current cycle already shown by update ticks
+
+    def cycle(self, m):
+        now = time.perf_counter()
+        sps = self.steps_per_cycle / max(now - self.t_last, 1e-9)
+        self.t_last = now
+        self.bar.update(max(1.0 - self.partial, 0.0))
+        self.partial = 0.0
+        self.bar.set_postfix(train_success=f"{float(m['success']):.2f}", steps_s=f"{sps:,.0f}",
+                             refresh=False)
+
+    def updates(self, n):
+        inc = self.update_tick / self.cfg.n_batches
+        if self.partial + inc < 1.0:
+            self.partial += inc
+            self.bar.update(inc)
+
+    def epoch(self, row, msg):
+        self.bar.n = row["epoch"] * self.cfg.n_cycles
+        self.bar.refresh()
+        self.bar.write(msg)
+
+    def close(self):
+        self.bar.close()
+
+
+def _epoch_line(row) -> str:
+    return (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
+            f"test_success {row['test_success_rate']:.3f}  "
+            f"arm_contact {row['test_arm_contact_rate']:.3f}  "
+            f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        cfg, env_over, run_dir = resolve(args, parser)
+    except ConfigError as e:
+        parser.error(str(e))
+
+    from daddpg_jax.running.runner import NonFiniteLoss, train
 
     print(f"run dir: {os.path.abspath(run_dir)}")
     print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
@@ -159,65 +239,30 @@ def main(argv=None):
         print(f"demonstrations: {cfg.n_demos} scripted episodes (not counted in env steps), "
               f"{cfg.demo_batch} demo transitions per update, bc_weight {cfg.bc_weight}, "
               f"q_filter {cfg.q_filter}", flush=True)
-    total = cfg.n_epochs * cfg.n_cycles
-    bar = progress = update_progress = None
-    # Long cycles (many updates, e.g. --num-envs 2048 on a CPU) also move the bar during the
-    # updates: 10 ticks per cycle once a cycle has >= 200 updates.
-    update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
-    if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, unit="cycle", dynamic_ncols=True, desc=f"{cfg.task}/{cfg.algo}")
-        t_last = [time.perf_counter()]
-        partial = [0.0]  # fraction of the current cycle already shown by update ticks
-        steps_per_cycle = cfg.num_envs * 50
-
-        def progress(m):
-            now = time.perf_counter()
-            sps = steps_per_cycle / max(now - t_last[0], 1e-9)
-            t_last[0] = now
-            bar.update(max(1.0 - partial[0], 0.0))
-            partial[0] = 0.0
-            bar.set_postfix(train_success=f"{float(m['success']):.2f}",
-                            steps_s=f"{sps:,.0f}", refresh=False)
-
-        if update_tick:
-            def update_progress(n):
-                inc = update_tick / cfg.n_batches
-                if partial[0] + inc < 1.0:
-                    partial[0] += inc
-                    bar.update(inc)
+    T = settings.task_config(cfg.task, **env_over).episode_length
+    bar = None if args.no_progress else Progress(cfg, T)
 
     def on_epoch(row):
-        msg = (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
-               f"test_success {row['test_success_rate']:.3f}  "
-               f"arm_contact {row['test_arm_contact_rate']:.3f}  "
-               f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
-        if bar is not None:
-            bar.n = row["epoch"] * cfg.n_cycles
-            bar.refresh()
-            bar.write(msg)
+        if bar is None:
+            print(_epoch_line(row), flush=True)
         else:
-            print(msg, flush=True)
+            bar.epoch(row, _epoch_line(row))
 
     try:
         res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
-                    progress=progress, on_epoch=on_epoch, command=" ".join(sys.argv),
-                    time_budget_s=args.time_budget, update_progress=update_progress,
-                    update_tick=update_tick)
+                    progress=bar.cycle if bar else None, on_epoch=on_epoch,
+                    command=" ".join(sys.argv), time_budget_s=args.time_budget,
+                    update_progress=bar.updates if bar and bar.update_tick else None,
+                    update_tick=bar.update_tick if bar else 0)
     except NonFiniteLoss as e:
-        if bar is not None:
-            bar.close()
         print(f"error: {e}", file=sys.stderr)
         return 3
     except KeyboardInterrupt:
+        print(f"\ninterrupted; resume with: daddpg-train --resume {run_dir}", file=sys.stderr)
+        return 130
+    finally:
         if bar is not None:
             bar.close()
-        print(f"\ninterrupted; resume with: python experiments/run.py --resume {run_dir}",
-              file=sys.stderr)
-        return 130
-    if bar is not None:
-        bar.close()
     print(res.summary())
     return 0
 

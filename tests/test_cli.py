@@ -1,0 +1,143 @@
+"""daddpg-train's flags and --help, and the field schema they read (no training here)."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from daddpg_jax.algo.config import TrainConfig, build_config, current_device, preset
+from daddpg_jax.cli import train as cli
+from daddpg_jax.running import checkpoint as ckpt
+from mjx_envs import schema, settings
+
+
+def _help_values(text: str, section: str) -> dict:
+    """{field: [value per task]} from one section of --help (wrapped lines re-joined)."""
+    body = text.split(section, 1)[1].split("\n\n", 1)[0]
+    lines = re.sub(r"\n      ", " ", body).splitlines()[1:]
+    out = {}
+    for line in lines:
+        m = re.match(r"  (\w+) \((.*?)\): ", line)
+        if m:
+            vals = m.group(2).split(" | ")
+            out[m.group(1)] = vals * len(settings.TASKS) if len(vals) == 1 else vals
+    return out
+
+
+@pytest.mark.parametrize("device", ["cpu", "gpu"])
+def test_help_prints_the_values_of_the_configs_actually_built(device):
+    text = cli.build_parser(device).format_help()
+    train = _help_values(text, "training fields for --set")
+    env = _help_values(text, "env fields for --env")
+    assert set(train) == set(schema.fields(TrainConfig))
+    assert set(env) == set(schema.fields(type(settings.default_config("push"))))
+    for i, task in enumerate(settings.TASKS):
+        cfg = build_config(task, device=device)
+        for name, vals in train.items():
+            assert vals[i] == schema.describe_value(getattr(cfg, name)), (task, name)
+        ecfg = settings.default_config(task)
+        for name, vals in env.items():
+            want = schema.describe_value(getattr(ecfg, name)) if hasattr(ecfg, name) else "-"
+            assert vals[i] == want, (task, name)
+    # the values that a dataclass-default listing used to get wrong
+    assert env["cone"][0] == "pyramidal" and env["target_radius"][1] == "0.06,0.08"
+    assert train["n_cycles"][0] == str(build_config("reach", device=device).n_cycles)
+
+
+def test_preset_device_comes_from_jax_and_can_be_overridden():
+    assert current_device() == "cpu"
+    assert preset("push") == preset("push", device="cpu")
+    gpu = build_config("push", device="gpu")
+    assert gpu.physics == "mjx" and gpu.num_envs == 4096
+    args = cli.build_parser("cpu").parse_args(["--task", "push", "--device", "gpu"])
+    cfg, _, _ = cli.resolve(args, None)
+    assert cfg == gpu
+
+
+def _resolve(*argv):
+    return cli.resolve(cli.build_parser("cpu").parse_args(list(argv)), None)
+
+
+def test_flags_set_and_env_reach_the_config(tmp_path):
+    cfg, env_over, run_dir = _resolve("--task", "push", "--num-envs", "4", "--algo", "ddpg",
+                                      "--set", "gamma=0.9", "--set", "hidden=64,64",
+                                      "--env", "arm_contact_penalty=0.1", "--epochs", "3",
+                                      "--out", str(tmp_path / "r"))
+    assert cfg == build_config("push", 4, device="cpu", algo="ddpg", gamma=0.9,
+                               hidden=(64, 64), n_epochs=3)
+    assert env_over == {"arm_contact_penalty": 0.1} and run_dir == str(tmp_path / "r")
+
+
+def test_config_file_reruns_a_recorded_configuration(tmp_path):
+    rec = build_config("push", 4, device="cpu", algo="maddpg", gamma=0.9, seed=7)
+    run = tmp_path / "old"
+    ckpt.save_config(str(run), rec, env_overrides={"team_scale": 0.5})
+    for where in (str(run / "config.json"), str(run)):
+        cfg, env_over, _ = _resolve("--config", where, "--out", str(tmp_path / "new"))
+        assert cfg == rec and env_over == {"team_scale": 0.5}
+    # flags after it override fields
+    cfg, env_over, _ = _resolve("--config", str(run / "config.json"), "--seed", "8",
+                                "--set", "polyak=0.9", "--env", "max_delta=0.04")
+    assert cfg == rec.replace(seed=8, polyak=0.9)
+    assert env_over == {"team_scale": 0.5, "max_delta": 0.04}
+    # a new size: the preset's size-dependent fields follow, the recorded ones stay
+    cfg, _, _ = _resolve("--config", str(run), "--num-envs", "32")
+    assert cfg == rec.replace(**preset("push", 32, device="cpu"))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--set", "gama=0.9"], "unknown --set field 'gama'"),
+    (["--set", "batch_size=0"], "batch_size must be >= 1"),
+    (["--set", "gamma=2"], "gamma must be < 1.0"),
+    (["--set", "n_cycles=0"], "n_cycles must be >= 1"),
+    (["--set", "hidden="], "hidden must not be empty"),
+    (["--set", "q_filter=maybe"], "q_filter expects true or false"),
+    (["--set", "gamma"], "--set expects KEY=VALUE"),
+    (["--env", "max_delta=-1"], "max_delta must be > 0.0"),
+    (["--env", "target_radius=0.1,0.2"], "unknown --env field 'target_radius'"),
+    (["--task", "push", "--env", "target_radius=0.2,0.1"], "target_radius must be (min, max)"),
+    (["--epochs", "0"], "n_epochs must be >= 1"),
+    (["--num-envs", "0"], "num_envs must be >= 1"),
+    (["--num-envs", "-3"], "num_envs must be >= 1"),
+    (["--resume", "/nonexistent/run"], "no config.json there"),
+    (["--config", "/nonexistent/run/config.json"], "no config.json there"),
+])
+def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv + ["--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and message in err, err
+    assert "Traceback" not in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_schema_parse_round_trips_every_field():
+    for cls, obj in ((TrainConfig, build_config("push", device="cpu")),
+                     (type(settings.default_config("push")), settings.default_config("push")),
+                     (type(settings.default_config("reach")), settings.default_config("reach"))):
+        for name in schema.fields(cls):
+            v = getattr(obj, name)
+            assert schema.parse(cls, name, schema.describe_value(v)) == v, name
+    assert schema.parse(TrainConfig, "buffer_size", "1e6") == 1_000_000
+    with pytest.raises(schema.ConfigError):
+        schema.parse(TrainConfig, "buffer_size", "1.5")
+
+
+def test_config_json_lists_become_tuples_and_validate():
+    d = TrainConfig().to_dict()
+    assert d["hidden"] == [256, 256, 256]
+    assert TrainConfig.from_dict({**d, "future_field": 1}) == TrainConfig()
+    env = settings.config_from_dict("push", schema.to_dict(settings.default_config("push")))
+    assert env == settings.default_config("push")
+    with pytest.raises(schema.ConfigError, match="polyak must be <= 1.0"):
+        TrainConfig.from_dict({**d, "polyak": 1.5})
+
+
+def test_console_script_is_installed():
+    exe = shutil.which("daddpg-train", path=os.path.dirname(sys.executable))
+    assert exe, "pip install -e . creates the console scripts"
+    out = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "training fields for --set" in out.stdout
