@@ -1,6 +1,7 @@
 """Latency and throughput of the policy service on loopback (bounded, loopback only).
 
-Thin caller of `daddpg_jax.cli.bench_server` (also `python -m daddpg_jax.cli.bench_server`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.bench_server` (also `python -m daddpg_jax.cli.bench_server`);
+`--help` lists every option.
 """
 
 import sys

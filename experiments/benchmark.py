@@ -1,6 +1,7 @@
 """Measure env and training throughput per task, engine and size; print a table, write JSON.
 
-Thin caller of `daddpg_jax.cli.benchmark` (also the console script `daddpg-benchmark`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.benchmark` (also the console script `daddpg-benchmark`);
+`--help` lists every option.
 """
 
 import sys

@@ -1,6 +1,7 @@
 """Side by side on one machine: Stable-Baselines3 DDPG + HerReplayBuffer (through the Gymnasium
 
-Thin caller of `daddpg_jax.cli.compare_sb3` (also `python -m daddpg_jax.cli.compare_sb3`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.compare_sb3` (also `python -m daddpg_jax.cli.compare_sb3`);
+`--help` lists every option.
 """
 
 import sys

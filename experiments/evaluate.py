@@ -1,6 +1,7 @@
 """Evaluate a trained run: success rate (95% Wilson interval), arm-contact rate, final goal
 
-Thin caller of `daddpg_jax.cli.evaluate` (also the console script `daddpg-evaluate`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.evaluate` (also the console script `daddpg-evaluate`);
+`--help` lists every option.
 """
 
 import sys

@@ -1,6 +1,7 @@
 """Export a training run's actors and normalizers to one NumPy .npz for the robot side.
 
-Thin caller of `daddpg_jax.cli.export` (also the console script `daddpg-export`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.export` (also the console script `daddpg-export`);
+`--help` lists every option.
 """
 
 import sys

@@ -1,6 +1,7 @@
 """
 
-Thin caller of `daddpg_jax.cli.plot` (also the console script `daddpg-plot`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.plot` (also the console script `daddpg-plot`);
+`--help` lists every option.
 """
 
 import sys

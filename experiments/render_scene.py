@@ -1,6 +1,7 @@
 """Render a task's scene at its start state to a PNG (headless: MUJOCO_GL=egl).
 
-Thin caller of `daddpg_jax.cli.render` (also the console script `daddpg-render`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.render` (also the console script `daddpg-render`);
+`--help` lists every option.
 """
 
 import sys

@@ -1,6 +1,7 @@
 """Reproduce the paper's experiments: learning curves per task over seeds, and the cooperation
 
-Thin caller of `daddpg_jax.cli.reproduce` (also the console script `daddpg-reproduce`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.reproduce` (also the console script `daddpg-reproduce`);
+`--help` lists every option.
 """
 
 import sys

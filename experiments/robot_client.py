@@ -1,6 +1,7 @@
 """
 
-Thin caller of `daddpg_jax.cli.robot_client` (also the console script `daddpg-robot-client`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.robot_client` (also the console script `daddpg-robot-client`);
+`--help` lists every option.
 """
 
 import sys

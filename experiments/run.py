@@ -1,6 +1,7 @@
 """Train two cooperating UR3 arms with DADDPG + HER (or a baseline variant).
 
-Thin caller of `daddpg_jax.cli.train` (also the console script `daddpg-train`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.train` (also the console script `daddpg-train`);
+`--help` lists every option.
 """
 
 import sys

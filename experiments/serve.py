@@ -1,6 +1,7 @@
 """Serve an exported policy over HTTP + JSON (the decision service the robot queries).
 
-Thin caller of `daddpg_jax.cli.serve` (also the console script `daddpg-serve`); `--help` lists every option.
+Thin caller of `daddpg_jax.cli.serve` (also the console script `daddpg-serve`);
+`--help` lists every option.
 """
 
 import sys

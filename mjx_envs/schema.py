@@ -21,7 +21,6 @@ import ast
 import dataclasses
 import math
 import typing
-from typing import Any
 
 _NO = object()
 
@@ -206,11 +205,18 @@ def from_dict(cls, d: dict, **kw):
     return cls(**vals)
 
 
+def _plain(v):
+    return [_plain(x) for x in v] if isinstance(v, tuple) else v
+
+
+def to_dict_values(d: dict) -> dict:
+    """A {field: value} dict made JSON-ready (tuples -> lists)."""
+    return {k: _plain(v) for k, v in d.items()}
+
+
 def to_dict(obj) -> dict:
-    """JSON-ready dict (tuples -> lists)."""
-    def plain(v):
-        return [plain(x) for x in v] if isinstance(v, tuple) else v
-    return {k: plain(v) for k, v in dataclasses.asdict(obj).items()}
+    """JSON-ready dict of a schema dataclass (tuples -> lists)."""
+    return to_dict_values(dataclasses.asdict(obj))
 
 
 def describe_value(v) -> str:

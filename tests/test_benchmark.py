@@ -1,20 +1,14 @@
-"""Smoke test of the benchmark suite (experiments/benchmark.py): tiny sizes, JSON layout."""
+"""Smoke test of the benchmark suite (daddpg-benchmark): tiny sizes, JSON layout."""
 
-import importlib.util
 import json
 import math
-import os
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-_spec = importlib.util.spec_from_file_location(
-    "bench_cli", os.path.join(ROOT, "experiments", "benchmark.py"))
-bench_cli = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench_cli)
+from daddpg_jax.cli import benchmark as bench_cli
 
 
 def test_benchmark_suite_writes_json(tmp_path):
     out_path = tmp_path / "bench.json"
-    bench_cli.main(["--tasks", "push", "--physics", "c", "--mode", "all", "--sizes", "2",
+    bench_cli.run(["--tasks", "push", "--physics", "c", "--mode", "all", "--sizes", "2",
                     "--steps", "5", "--repeats", "1", "--n-cycles", "1", "--contact-envs", "2",
                     "--set", "hidden=16,16", "--set", "n_batches=2", "--set", "buffer_size=1000",
                     "--env", "episode_length=8", "--out", str(out_path)])

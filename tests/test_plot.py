@@ -1,4 +1,5 @@
-"""Multi-run plots (daddpg_jax/analysis/plotting.py, experiments/plot.py) from fake metrics.csv files."""
+"""Multi-run plots (daddpg_jax/analysis/plotting.py, experiments/plot.py) from fake metrics.csv
+files."""
 
 import csv
 import json

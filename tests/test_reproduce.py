@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from daddpg_jax.analysis.reproduce import FINAL_COLUMNS, experiments, final_row, Experiment
+from daddpg_jax.analysis.reproduce import FINAL_COLUMNS, Experiment, experiments, final_row
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from daddpg_jax.algo.variants import ALGOS, get as get_variant
+from daddpg_jax.algo.variants import ALGOS
+from daddpg_jax.algo.variants import get as get_variant
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
 from mjx_envs.settings import TASKS
 

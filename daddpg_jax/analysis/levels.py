@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 # Success rates are k/n episode fractions logged in float32 (0.9 is stored as 0.89999998):
 # a rate counts as reaching a level within this tolerance.

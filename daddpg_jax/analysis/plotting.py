@@ -9,7 +9,7 @@ wall clock, arm-contact rate vs env steps (``experiments/plot.py``).
 from __future__ import annotations
 
 import os
-from typing import Iterable, Optional, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -62,8 +62,8 @@ def read_metrics(path: str) -> list[dict]:
     return rows
 
 
-def truncate(rows: Sequence[dict], max_wall: Optional[float] = None,
-             max_env_steps: Optional[float] = None) -> list[dict]:
+def truncate(rows: Sequence[dict], max_wall: float | None = None,
+             max_env_steps: float | None = None) -> list[dict]:
     """The epochs of a run that ended within ``max_wall`` seconds of its wall clock and
     ``max_env_steps`` env steps (None: no limit): a longer run cut to a shorter budget."""
     return [r for r in rows
@@ -138,7 +138,7 @@ def aggregate(runs: Sequence[Sequence[dict]], band: str = "minmax") -> dict:
     return out
 
 
-def plot_runs(groups: "dict[str, Sequence[Sequence[dict]]]", out: str, title: str = "",
+def plot_runs(groups: dict[str, Sequence[Sequence[dict]]], out: str, title: str = "",
               band: str = "minmax") -> str:
     """Three panels: test success vs env steps, test success vs wall clock, arm-contact rate vs
     env steps; one line (mean over the group's runs) and a shaded band per group."""

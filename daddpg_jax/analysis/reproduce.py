@@ -18,12 +18,12 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence
 
-from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.analysis.levels import first_reaching
+from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import train
 
 FINAL_COLUMNS = (
@@ -49,7 +49,7 @@ ABLATIONS = (
 )
 
 
-def experiments(seeds: int, algos: Optional[Sequence[str]] = None, ablations: bool = False,
+def experiments(seeds: int, algos: Sequence[str] | None = None, ablations: bool = False,
                 ablation_seeds: int = 1, first_seed: int = 0) -> list[tuple[Experiment, int]]:
     """(experiment, seed) pairs: the main variant (or ``algos``) over ``seeds`` seeds starting at
     ``first_seed``, plus the ablations over ``ablation_seeds`` seeds from the same start."""
@@ -84,8 +84,8 @@ def final_row(task: str, exp: Experiment, seed: int, rows: Sequence[dict]) -> di
 
 
 def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
-            budget_s: float, num_envs: Optional[int] = None, overrides: Optional[dict] = None,
-            env_overrides: Optional[dict] = None, log: Callable[[str], None] = print) -> list:
+            budget_s: float, num_envs: int | None = None, overrides: dict | None = None,
+            env_overrides: dict | None = None, log: Callable[[str], None] = print) -> list:
     """Trains (or resumes) one run until ``env_steps`` or ``budget_s`` of its wall clock."""
     base = preset(task, num_envs)
     per_epoch = base["n_cycles"] * base["num_envs"] * 50
@@ -114,10 +114,10 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
     return res.rows
 
 
-def run_set(task: str, out_dir: str, seeds: int = 3, algos: Optional[Sequence[str]] = None,
+def run_set(task: str, out_dir: str, seeds: int = 3, algos: Sequence[str] | None = None,
             ablations: bool = False, env_steps: int = 200_000, budget_minutes: float = 30.0,
-            num_envs: Optional[int] = None, overrides: Optional[dict] = None,
-            env_overrides: Optional[dict] = None, log: Callable[[str], None] = print,
+            num_envs: int | None = None, overrides: dict | None = None,
+            env_overrides: dict | None = None, log: Callable[[str], None] = print,
             first_seed: int = 0) -> dict:
     """Runs the set and writes final.csv, curves.png, ablations.png and summary.json."""
     from daddpg_jax.analysis.plotting import plot_runs

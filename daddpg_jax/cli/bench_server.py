@@ -23,7 +23,6 @@ import sys
 import threading
 import time
 
-
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
@@ -87,7 +86,8 @@ def bench(url: str, requests: int, clients: int, warmup: int, obs_size: int, see
 
 
 def start_service(policy_path: str, timeout_s: float = 60.0):
-    """Starts the policy service (daddpg_jax.cli.serve) on a free loopback port; returns (process, url)."""
+    """Starts the policy service (daddpg_jax.cli.serve) on a free loopback port; returns
+    (process, url)."""
     import re
     import subprocess
 
@@ -136,11 +136,13 @@ def main(argv=None) -> int:
             p.error(f"--url must be a loopback address ({', '.join(LOOPBACK)}), got {host!r}")
         url = args.url
         info = PolicyClient(url).info()
-        obs_size, task, algo, layers = info["obs_size"], info["task"], info["algo"], info["layer_sizes"]
+        obs_size, task, algo = info["obs_size"], info["task"], info["algo"]
+        layers = info["layer_sizes"]
     else:
         policy = NumpyPolicy.load(args.policy)
         proc, url = start_service(args.policy)
-        obs_size, task, algo, layers = policy.obs_size, policy.task, policy.algo, policy.meta["layer_sizes"]
+        obs_size, task, algo = policy.obs_size, policy.task, policy.algo
+        layers = policy.meta["layer_sizes"]
     try:
         res = bench(url, args.requests, args.clients, args.warmup, obs_size)
     finally:
@@ -149,10 +151,12 @@ def main(argv=None) -> int:
             proc.wait(timeout=10)
     import numpy
 
+    args_text = " ".join(argv if argv is not None else sys.argv[1:])
     res.update(task=task, algo=algo, layer_sizes=layers, server="subprocess" if proc else url,
-               machine=dict(cpu=_cpu_name(), cores=os.cpu_count(), python=platform.python_version(),
-                            numpy=numpy.__version__, system=platform.platform()),
-               command="python experiments/bench_server.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+               machine=dict(cpu=_cpu_name(), cores=os.cpu_count(),
+                            python=platform.python_version(), numpy=numpy.__version__,
+                            system=platform.platform()),
+               command="python experiments/bench_server.py " + args_text)
     print(json.dumps(res, indent=2))
     if args.json:
         with open(args.json, "w") as f:

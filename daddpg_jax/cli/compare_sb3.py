@@ -134,8 +134,8 @@ class GymEvaluator:
 
 
 def run_sb3(args) -> dict:
-    import numpy as np
     import gymnasium as gym
+    import numpy as np
     import torch
     from stable_baselines3 import DDPG, HerReplayBuffer
     from stable_baselines3.common.callbacks import BaseCallback

@@ -16,7 +16,6 @@ import os
 import sys
 
 
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="export.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

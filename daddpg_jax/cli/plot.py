@@ -26,7 +26,6 @@ import os
 import sys
 
 
-
 def _table_row(run: str, label: str, rows: list, cfg: dict) -> dict:
     from daddpg_jax.analysis.reproduce import Experiment, final_row
 
@@ -61,7 +60,13 @@ def main(argv=None) -> int:
         if v is not None and not v > 0:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {v}")
 
-    from daddpg_jax.analysis.plotting import plot_runs, read_metrics, run_config, run_label, truncate
+    from daddpg_jax.analysis.plotting import (
+        plot_runs,
+        read_metrics,
+        run_config,
+        run_label,
+        truncate,
+    )
 
     groups: dict = {}
     table = []

@@ -18,10 +18,8 @@ and runs/<label>_s<seed>/ (each a full run directory: metrics.csv, checkpoints, 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
-
 
 
 def main(argv=None) -> int:

@@ -3,29 +3,29 @@ service every control period, through the safety layer, and reports the success 
 
 Examples
   python experiments/serve.py policy.npz &
-  python experiments/robot_client.py --server http://127.0.0.1:8000 --task reach --episodes 200
+  python experiments/robot_client.py --server http://127.0.0.1:8000 --episodes 200
   python experiments/robot_client.py --server http://127.0.0.1:8000 --episodes 50 \
       --max-speed 0.5 --min-clearance 0.03 --json client.json
 
-The env settings (scene, dt, max_delta, workspace, goal region, threshold) come from the
-service's GET /info, i.e. from the exported run. No JAX is imported.
+The task and its env settings (scene, dt, max_delta, workspace, goal region, threshold, ...)
+come from the service's GET /info, i.e. from the exported run; settings an older export lacks
+are the task's defaults from mjx_envs.settings. No JAX is imported.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
 
-
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="robot_client.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--server", default="http://127.0.0.1:8000", help="policy service URL")
-    p.add_argument("--task", default="reach", help="task (must match the served policy)")
+    p.add_argument("--task", default=None,
+                   help="task; must match the served policy (default: the served policy's)")
     p.add_argument("--episodes", type=int, default=100, help="episodes to run")
     p.add_argument("--seed", type=int, default=0, help="seed of the NumPy goal sampler")
     p.add_argument("--deadline-ms", type=float, default=None,
@@ -42,32 +42,56 @@ def main(argv=None) -> int:
                    help="step one float64 MjData (a plain simulator) instead of mirroring the "
                         "trainer's C-engine bookkeeping exactly")
     p.add_argument("--json", default=None, help="also write the summary to this JSON file")
-    args = p.parse_args(argv)
+    return p
+
+
+class _ServiceError(Exception):
+    """The service cannot be used (unreachable, another task, bad settings); says why."""
+
+
+def _served(server: str, task):
+    """(service info, the task's settings (a mjx_envs.settings config), env settings with
+    ``dt``) of the served policy; raises _ServiceError."""
+    from daddpg_jax.deploy.policy import env_settings, task_settings
+    from daddpg_jax.deploy.server import PolicyClient
+
+    try:
+        info = PolicyClient(server, timeout=5.0).info()
+    except (OSError, RuntimeError, ValueError) as e:
+        raise _ServiceError(f"policy service at {server} not reachable: {e}") from None
+    served = info.get("task")
+    if task is not None and served != task:
+        raise _ServiceError(f"the service serves a {served!r} policy, not {task!r}")
+    try:
+        return info, task_settings(served, info.get("env")), env_settings(served, info.get("env"))
+    except ValueError as e:
+        raise _ServiceError(f"settings of the served {served!r} policy: {e}") from None
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
 
     from daddpg_jax.deploy.robot import run_episodes
     from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
     from daddpg_jax.deploy.server import PolicyClient
+    from mjx_envs import schema
     from mjx_envs.numpy_env import NumpyDualArmEnv
 
     try:
-        info = PolicyClient(args.server, timeout=5.0).info()
-    except (OSError, RuntimeError, ValueError) as e:
-        print(f"error: policy service at {args.server} not reachable: {e}", file=sys.stderr)
+        info, task_cfg, settings = _served(args.server, args.task)
+    except _ServiceError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
-    if info.get("task") != args.task:
-        print(f"error: the service serves a {info.get('task')!r} policy, not {args.task!r}",
-              file=sys.stderr)
-        return 2
-    env_settings = info["env"]
     deadline = None if args.deadline_ms is None else args.deadline_ms / 1e3
-    limits = SafetyLimits.from_env(env_settings, max_speed=args.max_speed,
+    limits = SafetyLimits.from_env(settings, max_speed=args.max_speed,
                                    min_clearance=args.min_clearance, deadline_s=deadline,
                                    margin=args.workspace_margin)
     client = PolicyClient(args.server, timeout=max(limits.deadline_s, 0.001))
-    env = NumpyDualArmEnv(env_settings, task=args.task, exact=not args.float64)
+    task = info["task"]
+    env = NumpyDualArmEnv(schema.to_dict(task_cfg), task=task, exact=not args.float64)
     t0 = time.perf_counter()
     out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed)
-    out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=args.task,
+    out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,
                algo=info.get("algo"), seed=args.seed, deadline_ms=limits.deadline_s * 1e3,
                max_step_m=limits.max_step, min_clearance_m=limits.min_clearance)
     print(json.dumps(out, indent=2))

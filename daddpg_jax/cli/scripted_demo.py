@@ -47,12 +47,14 @@ def main(argv=None) -> int:
     import numpy as np
 
     import mjx_envs
-    from daddpg_jax.running.overrides import parse_overrides
+    from mjx_envs import schema, settings
     from mjx_envs.tasks import scripted
 
-    ecfg = mjx_envs.default_config(args.task)
-    env_over = parse_overrides(args.env, {f.name: getattr(ecfg, f.name)
-                                          for f in dataclasses.fields(ecfg)}, "--env")
+    try:
+        env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
+                                          "--env")
+    except schema.ConfigError as e:
+        p.error(str(e))
     env = mjx_envs.make(args.task, physics=args.physics, **env_over)
     if args.policy == "zero":
         def policy(obs, max_delta):

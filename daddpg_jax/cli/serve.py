@@ -13,9 +13,7 @@ No JAX is imported.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-
 
 
 def main(argv=None) -> int:

@@ -24,8 +24,7 @@ import sys
 import textwrap
 import time
 
-from daddpg_jax.algo.config import (DEVICES, HER_MODES, PHYSICS, TrainConfig, build_config,
-                                     preset)
+from daddpg_jax.algo.config import DEVICES, HER_MODES, PHYSICS, TrainConfig, build_config, preset
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
 from mjx_envs import schema, settings
 from mjx_envs.schema import ConfigError

@@ -19,7 +19,6 @@ import importlib.metadata
 import json
 import os
 import subprocess
-from typing import Optional
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +31,7 @@ def checkpoint_dir(run_dir) -> str:
     return os.path.join(os.path.abspath(os.fspath(run_dir)), "checkpoints")
 
 
-def _manager(run_dir, keep: Optional[int] = None) -> ocp.CheckpointManager:
+def _manager(run_dir, keep: int | None = None) -> ocp.CheckpointManager:
     opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
     return ocp.CheckpointManager(checkpoint_dir(run_dir), options=opts)
 
@@ -61,7 +60,7 @@ class RunDirError(FileNotFoundError):
     """A directory is not a run directory, or lacks the asked-for checkpoint."""
 
 
-def check_run_dir(run_dir, step: Optional[int] = None) -> list:
+def check_run_dir(run_dir, step: int | None = None) -> list:
     """Checks that ``run_dir`` is a training run with checkpoint ``step`` (default: any) and
     returns its checkpoint steps; raises :class:`RunDirError` with a message for the user."""
     run_dir = os.fspath(run_dir)
@@ -86,7 +85,7 @@ def all_steps(run_dir):
         return sorted(mngr.all_steps())
 
 
-def latest_step(run_dir) -> Optional[int]:
+def latest_step(run_dir) -> int | None:
     steps = all_steps(run_dir)
     return steps[-1] if steps else None
 
@@ -95,7 +94,7 @@ def has_buffer(run_dir, step: int) -> bool:
     return os.path.isdir(os.path.join(checkpoint_dir(run_dir), str(int(step)), "buffer"))
 
 
-def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optional[bool] = None):
+def restore(run_dir, template, step: int | None = None, restore_buffer: bool | None = None):
     """Restores checkpoint `step` (default: latest) into the structure of `template` (a TrainState
     from `init`, which fixes shapes, dtypes and shardings). restore_buffer=None restores the
     buffer when the checkpoint has one; otherwise the template's buffer is kept.
@@ -133,14 +132,14 @@ def restore(run_dir, template, step: Optional[int] = None, restore_buffer: Optio
     return serialization.from_state_dict(template, full), step
 
 
-def _version(pkg: str) -> Optional[str]:
+def _version(pkg: str) -> str | None:
     try:
         return importlib.metadata.version(pkg)
     except importlib.metadata.PackageNotFoundError:
         return None
 
 
-def _git_revision(path) -> Optional[str]:
+def _git_revision(path) -> str | None:
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=path, capture_output=True,
                              text=True, timeout=5)
@@ -161,7 +160,7 @@ def save_config(run_dir, cfg, **extra) -> str:
                                            "numpy", "mujoco", "mujoco-mjx", "daddpg-jax")},
         device=str(jax.devices()[0].device_kind), backend=jax.default_backend(),
         git_revision=_git_revision(repo),
-        created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **extra,
     )
     path = os.path.join(run_dir, "config.json")

@@ -1,0 +1,47 @@
+"""Files written by earlier versions still load: a run directory (config.json + orbax checkpoint)
+and an exported policy .npz, both written by the flat-layout version of the package (before the
+subpackages and the field schema). tests/data/legacy_reach holds them, and the actions that
+version's NumPy policy computed for fixed inputs."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from daddpg_jax.cli import export as export_cli
+from daddpg_jax.cli import train as train_cli
+from daddpg_jax.deploy import NumpyPolicy
+from daddpg_jax.running import checkpoint as ckpt
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "legacy_reach")
+
+
+@pytest.fixture(scope="module")
+def reference():
+    with np.load(os.path.join(DATA, "reference_actions.npz")) as f:
+        return {k: f[k] for k in f.files}
+
+
+def test_old_policy_file_gives_the_old_actions(reference):
+    pol = NumpyPolicy.load(os.path.join(DATA, "policy.npz"))
+    got = pol.act(reference["observation"], reference["desired_goal"])
+    np.testing.assert_array_equal(got, reference["action"])
+
+
+@pytest.fixture
+def old_run(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(os.path.join(DATA, "run"), run)
+    return str(run)
+
+
+def test_old_run_exports_and_resumes(old_run, tmp_path, reference):
+    cfg, _ = ckpt.load_config(old_run)
+    assert cfg.hidden == (16,) and cfg.task == "reach"
+    out = str(tmp_path / "policy.npz")
+    assert export_cli.main([old_run, "--out", out]) == 0
+    got = NumpyPolicy.load(out).act(reference["observation"], reference["desired_goal"])
+    np.testing.assert_allclose(got, reference["action"], atol=1e-6)
+    assert train_cli.main(["--resume", old_run, "--epochs", "2", "--no-progress"]) == 0
+    assert ckpt.all_steps(old_run)[-1] == 2
