@@ -1,4 +1,5 @@
-"""Export -> NumPy policy: round trip, parity with the JAX actors, errors, JAX-free imports."""
+"""Export -> NumPy policy: round trip, parity with the JAX actors, errors, older files,
+imports without JAX or MuJoCo."""
 
 from __future__ import annotations
 
@@ -14,15 +15,23 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
-from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy, PolicyFormatError
-from daddpg_jax.running.export import ExportError, export_run, export_state
 from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy, PolicyFormatError
+from daddpg_jax.deploy.policy import env_settings, task_settings
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.running.export import ExportError, export_run, export_state
 from mjx_envs import observation as obs_lib
+from mjx_envs import schema, settings
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ALGOS = ("daddpg", "maddpg", "ddpg", "single")
+ALGOS = variants.ALGOS
+# the env settings that exports written before every task field was saved hold
+FORMAT_1_ENV_KEYS = ("scene", "episode_length", "n_substeps", "timestep", "dt", "cone",
+                     "max_delta", "lock_fingers", "locked_opening", "finger_stroke",
+                     "distance_threshold", "arm_clearance", "workspace_low", "workspace_high",
+                     "goal_low", "goal_high")
 N_INPUTS = 1000
 
 
@@ -165,6 +174,82 @@ def test_policy_file_errors(exported, tmp_path):
         NumpyPolicy.load(tmp_path / "cut.npz")
 
 
+def _rewrite(path, out, **meta_changes):
+    """A copy of the export at ``path`` with ``meta`` entries replaced."""
+    with np.load(path, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files}
+    meta = {**json.loads(str(arrays["meta"])), **meta_changes}
+    np.savez(out, **{**arrays, "meta": np.array(json.dumps(meta))})
+    return out
+
+
+def test_policy_reads_its_variant_row(exported, tmp_path):
+    for algo in ALGOS:
+        policy = NumpyPolicy.load(exported[algo][2])
+        row = variants.get(algo)
+        assert policy.variant == row and policy.num_agents == row.num_agents
+        assert policy.meta["actor_input_dim"] == row.input_dims(25, 3)[0]
+        assert policy.weights[-1].shape[-1] == row.agent_action_dim
+    # a file whose actors do not fit its algo's row, or an algo without a row
+    path = exported["maddpg"][2]
+    with pytest.raises(PolicyFormatError, match="actor input size 28, expected 56"):
+        NumpyPolicy.load(_rewrite(path, tmp_path / "a.npz", algo="daddpg"))
+    with pytest.raises(PolicyFormatError, match="2 agents for algo single"):
+        NumpyPolicy.load(_rewrite(path, tmp_path / "b.npz", algo="single"))
+    with pytest.raises(PolicyFormatError, match="unknown algo 'td3'"):
+        NumpyPolicy.load(_rewrite(path, tmp_path / "c.npz", algo="td3"))
+
+
+def test_export_saves_every_task_setting(exported, env):
+    policy = NumpyPolicy.load(exported["daddpg"][2])
+    saved = policy.meta["env"]
+    assert set(saved) == set(schema.fields(settings.default_config("reach"))) | {"dt"}
+    assert saved == {**schema.to_dict(env.config), "dt": pytest.approx(env.dt)}
+    assert policy.env == saved and policy.info()["env"] == saved
+    assert task_settings("reach", saved) == env.config
+
+
+def test_older_export_loads_with_task_defaults(exported, tmp_path):
+    """An export written before every task field was saved (format 1, env settings
+    FORMAT_1_ENV_KEYS) loads; the fields it lacks come from mjx_envs.settings."""
+    path = exported["ddpg"][2]
+    full = NumpyPolicy.load(path)
+    old_env = {k: full.meta["env"][k] for k in FORMAT_1_ENV_KEYS}
+    old_env["max_delta"] = 0.03  # the run's own value wins over the task default
+    old = NumpyPolicy.load(_rewrite(path, tmp_path / "old.npz", env=old_env))
+    defaults = schema.to_dict(settings.default_config("reach"))
+    assert old.meta["env"] == old_env  # the file's own record is left as it is
+    assert old.env == {**defaults, **old_env}
+    assert old.env["goal_scale"] == defaults["goal_scale"] and old.env["max_delta"] == 0.03
+    assert old.info()["env"] == old.env
+    o, g = random_inputs(20, seed=3)
+    np.testing.assert_array_equal(old.act(o, g), full.act(o, g))
+    # a policy file the flat-layout version of the package wrote (tests/data/legacy_reach)
+    legacy = NumpyPolicy.load(os.path.join(ROOT, "tests", "data", "legacy_reach", "policy.npz"))
+    assert set(legacy.meta["env"]) == set(FORMAT_1_ENV_KEYS)
+    assert legacy.env == {**defaults, **legacy.meta["env"]}
+    # no env settings at all: the task's defaults, dt from timestep * n_substeps
+    bare = NumpyPolicy.load(_rewrite(path, tmp_path / "bare.npz", env={}))
+    assert bare.env == {**defaults, "dt": pytest.approx(0.04)}
+
+
+def test_env_settings_fill_from_task_defaults(exported, tmp_path):
+    push = env_settings("push", {"max_delta": 0.03, "dt": 0.04})
+    assert push["scene"] == "scene_push.xml" and push["max_delta"] == 0.03
+    assert push["target_radius"] == list(settings.default_config("push").target_radius)
+    assert push["dt"] == 0.04  # saved: kept
+    assert env_settings("pot", {})["dt"] == pytest.approx(0.005 * 8)
+    cfg = task_settings("pickup", {"workspace_low": [[0.1, -0.1, 0.4], [0.1, -0.3, 0.4]]})
+    assert isinstance(cfg, settings.ObjectTaskConfig) and cfg.workspace_low[0] == (0.1, -0.1, 0.4)
+    assert env_settings("custom", {"dt": 0.1, "x": 1}) == {"dt": 0.1, "x": 1}  # unknown task
+    with pytest.raises(ValueError, match="max_delta"):
+        env_settings("reach", {"max_delta": -1.0})
+    path = exported["daddpg"][2]
+    bad = dict(NumpyPolicy.load(path).meta["env"], cone="square")
+    with pytest.raises(PolicyFormatError, match="cone"):
+        NumpyPolicy.load(_rewrite(path, tmp_path / "bad.npz", env=bad))
+
+
 @pytest.fixture(scope="module")
 def run_with_checkpoint(env, exported, tmp_path_factory):
     """A run directory holding config.json and checkpoints 1 and 2 (no training)."""
@@ -184,7 +269,8 @@ def test_export_run_restores_checkpoint(run_with_checkpoint, exported, tmp_path)
     assert latest.meta["source"]["checkpoint_step"] == 2
     assert first.meta["source"]["checkpoint_step"] == 1
     direct = NumpyPolicy.load(exported["daddpg"][2])
-    for a, b in zip(latest.weights + latest.biases, direct.weights + direct.biases):
+    for a, b in zip(latest.weights + latest.biases, direct.weights + direct.biases,
+                    strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(latest.obs_std, direct.obs_std)
     assert not np.array_equal(first.weights[0], latest.weights[0])
@@ -214,38 +300,56 @@ def test_export_cli(run_with_checkpoint, tmp_path):
     assert r.returncode != 0 and "does not exist" in r.stderr and "Traceback" not in r.stderr
 
 
-JAX_FREE_SCRIPT = textwrap.dedent("""
-    import importlib.abc, sys
+DEPLOY_FREE_SCRIPT = textwrap.dedent("""
+    # argv: policy file, "numpy" (block JAX and MuJoCo) or "sim" (block JAX only)
+    import importlib, importlib.abc, pkgutil, sys
+
+    mode = sys.argv[2]
+    BLOCKED = ("jax", "jaxlib", "flax", "optax", "orbax", "chex")
+    BLOCKED += ("mujoco", "mujoco_mjx") if mode == "numpy" else ()
 
     class Block(importlib.abc.MetaPathFinder):
         def find_spec(self, name, path=None, target=None):
-            if name.split(".")[0] in ("jax", "jaxlib", "flax", "optax", "orbax", "chex"):
+            if name.split(".")[0] in BLOCKED:
                 raise ImportError(f"blocked import of {name}")
             return None
 
     sys.meta_path.insert(0, Block())
     import numpy as np
-    import daddpg_jax.deploy, daddpg_jax.deploy.safety, daddpg_jax.deploy.robot, daddpg_jax.deploy.server
-    import mjx_envs.observation, mjx_envs.numpy_env, daddpg_jax.deploy.ur3
+    import daddpg_jax.deploy
+    mods = [m.name for m in pkgutil.iter_modules(daddpg_jax.deploy.__path__,
+                                                 "daddpg_jax.deploy.")]
+    for m in mods + ["mjx_envs.observation", "mjx_envs.settings"]:
+        importlib.import_module(m)
+    from daddpg_jax.deploy.safety import SafetyLimits
     policy = daddpg_jax.deploy.NumpyPolicy.load(sys.argv[1])
-    env = mjx_envs.numpy_env.NumpyDualArmEnv(policy.env)
-    res = env.reset(np.random.default_rng(0))
-    a = policy.act(res.observation, res.desired_goal)
-    res = env.step(a)
-    bad = [m for m in sys.modules if m.split(".")[0] in ("jax", "jaxlib", "flax", "optax")]
+    SafetyLimits.from_env(policy.env)
+    rng = np.random.default_rng(0)
+    o, g = rng.normal(0, 0.2, (2, 25)), rng.uniform(0.1, 0.5, (2, 3))
+    if mode == "sim":
+        import mjx_envs.numpy_env
+        env = mjx_envs.numpy_env.NumpyDualArmEnv(policy.env, task=policy.task)
+        res = env.reset(rng)
+        o, g = res.observation, res.desired_goal
+    a = policy.act(o, g)
+    if mode == "sim":
+        env.step(a)
+    bad = [m for m in sys.modules if m.split(".")[0] in BLOCKED]
     assert not bad, bad
-    try:
-        import jax
-    except ImportError:
-        print("JAX-FREE OK", a.shape)
+    print("OK", mode, ",".join(sorted(mods)), a.shape)
 """)
 
 
-def test_robot_side_imports_without_jax(exported, tmp_path):
-    script = tmp_path / "jax_free.py"
-    script.write_text(JAX_FREE_SCRIPT)
+@pytest.mark.parametrize("mode", ["numpy", "sim"])
+def test_robot_side_imports_without_jax(exported, tmp_path, mode):
+    """Every module of daddpg_jax.deploy imports and the policy acts with NumPy only (neither
+    JAX nor MuJoCo importable); with MuJoCo but no JAX, the NumPy simulator steps too."""
+    script = tmp_path / "deploy_free.py"
+    script.write_text(DEPLOY_FREE_SCRIPT)
     env = dict(os.environ, PYTHONPATH=ROOT)
-    r = subprocess.run([sys.executable, str(script), exported["single"][2]], capture_output=True,
-                       text=True, timeout=120, cwd=str(tmp_path), env=env)
+    r = subprocess.run([sys.executable, str(script), exported["single"][2], mode],
+                       capture_output=True, text=True, timeout=120, cwd=str(tmp_path), env=env)
     assert r.returncode == 0, r.stderr
-    assert "JAX-FREE OK (8,)" in r.stdout
+    files = sorted(f[:-3] for f in os.listdir(os.path.join(ROOT, "daddpg_jax", "deploy"))
+                   if f.endswith(".py") and f != "__init__.py")
+    assert f"OK {mode} {','.join('daddpg_jax.deploy.' + f for f in files)} (8,)" in r.stdout

@@ -12,19 +12,16 @@ import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax.deploy import robot
 from daddpg_jax.algo.config import TrainConfig, preset
-from daddpg_jax.deploy import NumpyPolicy
-from daddpg_jax.running.export import _env_settings, export_run, export_state
+from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.deploy import NumpyPolicy, robot, ur3
 from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
 from daddpg_jax.deploy.server import PolicyClient, PolicyServer
-from daddpg_jax.algo.train import make_train_fns
-from daddpg_jax.deploy import ur3
+from daddpg_jax.running.export import _env_settings, export_run, export_state
 from mjx_envs.numpy_env import NumpyDualArmEnv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -60,7 +57,8 @@ def test_numpy_env_matches_trainer_env(jenv, settings, jax_step):
             a = rng.uniform(-1.3, 1.3, 8).astype(np.float32)  # includes out-of-range values
             s, r = step(s, a), nenv.step(a)
             np.testing.assert_allclose(r.observation, np.asarray(s.obs["observation"]), atol=1e-5)
-            np.testing.assert_allclose(r.achieved_goal, np.asarray(s.obs["achieved_goal"]), atol=1e-5)
+            np.testing.assert_allclose(r.achieved_goal, np.asarray(s.obs["achieved_goal"]),
+                                       atol=1e-5)
             np.testing.assert_allclose(r.target, np.asarray(s.data.mocap_pos[:2]), atol=1e-6)
             assert r.success == bool(s.metrics["success"])
             assert r.arm_clearance == pytest.approx(float(s.metrics["arm_clearance"]), abs=1e-5)
@@ -82,8 +80,8 @@ def test_numpy_env_goals_and_float64_mode(settings):
         a = np.array([1, 0, 0, 0, 0, -1, 0, 0], np.float32)
         r, r2 = env.step(a), loose.step(a)
     np.testing.assert_allclose(r.achieved_goal, r2.achieved_goal, atol=5e-3)
-    with pytest.raises(NotImplementedError):
-        NumpyDualArmEnv(settings, task="push")
+    with pytest.raises((ValueError, NotImplementedError)):
+        NumpyDualArmEnv(settings, task="no_such_task")
 
 
 # -- safety layer --------------------------------------------------------------------------------
@@ -129,7 +127,8 @@ def test_speed_cap_and_workspace_clamp():
     d = f.filter(cur, out, _parallel_arms(0.6))
     assert not d.stopped and "speed" in d.reasons
     assert np.all(np.linalg.norm(d.target - cur, axis=-1) <= 0.05 + 1e-6)
-    assert np.all(d.target >= f.limits.workspace_low) and np.all(d.target <= f.limits.workspace_high)
+    assert np.all(d.target >= f.limits.workspace_low)
+    assert np.all(d.target <= f.limits.workspace_high)
 
 
 def test_clearance_rule_refuses_approach_and_allows_separation():
@@ -203,11 +202,13 @@ def test_frames():
         # yaw = pi: the base x axis points along world -x, base y along world -y
         np.testing.assert_allclose(robot.base_to_world(arm, [1, 0, 0]),
                                    ur3.BASE_POS[arm] + [-1, 0, 0], atol=1e-12)
-        np.testing.assert_allclose(robot.vector_base_to_world(arm, [0, 1, 0]), [0, -1, 0], atol=1e-12)
-        p = np.random.default_rng(0).normal(size=(10, 3))
-        np.testing.assert_allclose(robot.world_to_base(arm, robot.base_to_world(arm, p)), p, atol=1e-12)
-        np.testing.assert_allclose(robot.base_from_world(arm) @ robot.world_from_base(arm), np.eye(4),
+        np.testing.assert_allclose(robot.vector_base_to_world(arm, [0, 1, 0]), [0, -1, 0],
                                    atol=1e-12)
+        p = np.random.default_rng(0).normal(size=(10, 3))
+        np.testing.assert_allclose(robot.world_to_base(arm, robot.base_to_world(arm, p)), p,
+                                   atol=1e-12)
+        np.testing.assert_allclose(robot.base_from_world(arm) @ robot.world_from_base(arm),
+                                   np.eye(4), atol=1e-12)
         q = np.random.default_rng(1).uniform(-np.pi, np.pi, 6)
         np.testing.assert_allclose(
             robot.base_to_world(arm, ur3.forward_kinematics(q)[:3, 3]),
@@ -226,7 +227,8 @@ def test_sim_home_pose_matches_dh_in_base_frames(settings):
     for i, arm in enumerate("lr"):
         q = [env.home_qpos[m.jnt_qposadr[m.joint(f"{arm}_j{k + 1}").id]] for k in range(6)]
         tcp_base = ur3.forward_kinematics(np.asarray(q, float))[:3, 3]
-        np.testing.assert_allclose(robot.base_to_world(arm, tcp_base), res.achieved_goal[i], atol=2e-3)
+        np.testing.assert_allclose(robot.base_to_world(arm, tcp_base), res.achieved_goal[i],
+                                   atol=2e-3)
 
 
 def test_tool_orientation_and_commands():
@@ -240,7 +242,8 @@ def test_tool_orientation_and_commands():
     a = np.array([1, 0, -0.5, -1, 0, -2, 0, 1], float)
     d = robot.cartesian_deltas_world(a, 0.05)
     np.testing.assert_allclose(d, [[0.05, 0, -0.025], [0, -0.05, 0]])
-    np.testing.assert_allclose(robot.vector_world_to_base("l", d[0]), [-0.05, 0, -0.025], atol=1e-12)
+    np.testing.assert_allclose(robot.vector_world_to_base("l", d[0]), [-0.05, 0, -0.025],
+                               atol=1e-12)
     np.testing.assert_allclose(robot.finger_openings(a, 0.04), [0.0, 0.04])
     np.testing.assert_allclose(robot.finger_openings(np.zeros(8), 0.04), [0.02, 0.02])
     np.testing.assert_allclose(robot.finger_openings(a, 0.04, lock_fingers=True), [0.0, 0.0])
@@ -303,19 +306,27 @@ def test_client_loop_matches_trainer_rollout(tiny_served, jenv, settings, jax_st
 
 def test_robot_client_cli(tiny_served, tmp_path):
     srv = tiny_served[0]
-    out_json = tmp_path / "client.json"
+    script = os.path.join(ROOT, "experiments", "robot_client.py")
     env = dict(os.environ, JAX_PLATFORMS="cpu")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "robot_client.py"),
-                        "--server", srv.url, "--task", "reach", "--episodes", "2", "--seed", "1",
-                        "--deadline-ms", "2000", "--json", str(out_json)],
-                       capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
+
+    def client(*args):
+        return subprocess.run([sys.executable, script, "--server", srv.url, *args],
+                              capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
+
+    out_json = tmp_path / "client.json"
+    r = client("--task", "reach", "--episodes", "2", "--seed", "1", "--deadline-ms", "2000",
+               "--json", str(out_json))
     assert r.returncode == 0, r.stderr
     res = json.loads(out_json.read_text())
     assert res["episodes"] == 2 and res["task"] == "reach" and res["stops"] == 0
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "robot_client.py"),
-                        "--server", srv.url, "--task", "push", "--episodes", "1"],
-                       capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
+    r = client("--episodes", "1", "--deadline-ms", "2000")  # the task from GET /info
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["task"] == "reach"
+    r = client("--task", "push", "--episodes", "1")
     assert r.returncode != 0 and "serves a 'reach' policy" in r.stderr
+    r = subprocess.run([sys.executable, script, "--server", "http://127.0.0.1:1"],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
+    assert r.returncode == 2 and "not reachable" in r.stderr and "Traceback" not in r.stderr
 
 
 class _StubClient:
@@ -379,8 +390,8 @@ def test_sim_to_sim_success_matches_trainer_eval(tmp_path):
     finally:
         srv.stop()
     print(f"trainer eval {trainer:.3f}; client {plain['success_rate']:.3f}; client with the "
-          f"clearance rule {guarded['success_rate']:.3f} (min gap {guarded['min_arm_clearance']:.4f} "
-          f"vs {plain['min_arm_clearance']:.4f} m)")
+          f"clearance rule {guarded['success_rate']:.3f} (min gap "
+          f"{guarded['min_arm_clearance']:.4f} vs {plain['min_arm_clearance']:.4f} m)")
     assert trainer >= 0.6
     assert abs(plain["success_rate"] - trainer) <= 0.10
     assert plain["stops"] == 0

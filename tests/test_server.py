@@ -14,10 +14,10 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo.config import TrainConfig
-from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy
-from daddpg_jax.running.export import export_state
-from daddpg_jax.deploy.server import PolicyClient, PolicyServer, json_depth_exceeds
 from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy
+from daddpg_jax.deploy.server import PolicyClient, PolicyServer, json_depth_exceeds
+from daddpg_jax.running.export import export_state
 from mjx_envs import observation as obs_lib
 
 
@@ -185,7 +185,8 @@ def test_malformed_fields_get_400(server, policy, name, payload):
 def test_error_messages_say_what_is_wrong(server):
     _, out = _request(server, "POST", "/act", {"observation": GOOD_O})
     assert "desired_goal" in out["error"]
-    _, out = _request(server, "POST", "/act", {"observation": [[0.1] * 24] * 2, "desired_goal": GOOD_G})
+    _, out = _request(server, "POST", "/act",
+                      {"observation": [[0.1] * 24] * 2, "desired_goal": GOOD_G})
     assert "observation" in out["error"] and "25" in out["error"]
 
 

@@ -77,7 +77,10 @@ def bench(url: str, requests: int, clients: int, warmup: int, obs_size: int, see
     wall = time.perf_counter() - t0
     all_rtt = np.concatenate([np.asarray(r) for r in rtts]) if requests else np.zeros(0)
     all_srv = np.concatenate([np.asarray(r) for r in server_ms]) if requests else np.zeros(0)
-    pct = lambda q: round(float(np.percentile(all_rtt, q)), 3) if all_rtt.size else None  # noqa: E731
+
+    def pct(q):
+        return round(float(np.percentile(all_rtt, q)), 3) if all_rtt.size else None
+
     return dict(requests=int(requests), clients=int(clients), errors=int(sum(errors)),
                 wall_s=round(wall, 3), requests_per_s=round(all_rtt.size / wall, 1),
                 rtt_ms_p50=pct(50), rtt_ms_p90=pct(90), rtt_ms_p99=pct(99),

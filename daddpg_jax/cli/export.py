@@ -1,12 +1,12 @@
 """Export a training run's actors and normalizers to one NumPy .npz for the robot side.
 
-Examples
-  python experiments/export.py runs/reach --out policy.npz            # latest checkpoint
-  python experiments/export.py runs/reach --step 2 --out policy.npz   # checkpoint 2
+Examples (daddpg-export = python experiments/export.py)
+  daddpg-export runs/reach --out policy.npz            # latest checkpoint
+  daddpg-export runs/reach --step 2 --out policy.npz   # checkpoint 2
 
-The file holds both actors' weights, the normalizers, action scaling, the observation layout and
-the env settings a robot needs (format: daddpg_jax/running/export.py, docs/DEPLOYMENT.md). Load it
-without JAX with daddpg_jax.deploy.NumpyPolicy.load, or serve it with experiments/serve.py.
+The file holds the actors' weights, the normalizers, action scaling, the observation layout and
+the run's env settings (format: daddpg_jax/running/export.py, docs/DEPLOYMENT.md). Load it
+without JAX with daddpg_jax.deploy.NumpyPolicy.load, or serve it with daddpg-serve.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 r"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
 service every control period, through the safety layer, and reports the success rate.
 
-Examples
-  python experiments/serve.py policy.npz &
-  python experiments/robot_client.py --server http://127.0.0.1:8000 --episodes 200
-  python experiments/robot_client.py --server http://127.0.0.1:8000 --episodes 50 \
+Examples (daddpg-robot-client = python experiments/robot_client.py)
+  daddpg-serve policy.npz &
+  daddpg-robot-client --server http://127.0.0.1:8000 --episodes 200
+  daddpg-robot-client --server http://127.0.0.1:8000 --episodes 50 \
       --max-speed 0.5 --min-clearance 0.03 --json client.json
 
 The task and its env settings (scene, dt, max_delta, workspace, goal region, threshold, ...)
@@ -74,7 +74,6 @@ def main(argv=None) -> int:
     from daddpg_jax.deploy.robot import run_episodes
     from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
     from daddpg_jax.deploy.server import PolicyClient
-    from mjx_envs import schema
     from mjx_envs.numpy_env import NumpyDualArmEnv
 
     try:
@@ -88,7 +87,7 @@ def main(argv=None) -> int:
                                    margin=args.workspace_margin)
     client = PolicyClient(args.server, timeout=max(limits.deadline_s, 0.001))
     task = info["task"]
-    env = NumpyDualArmEnv(schema.to_dict(task_cfg), task=task, exact=not args.float64)
+    env = NumpyDualArmEnv(task_cfg, task=task, exact=not args.float64)
     t0 = time.perf_counter()
     out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed)
     out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,

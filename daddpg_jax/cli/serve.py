@@ -1,8 +1,8 @@
 """Serve an exported policy over HTTP + JSON (the decision service the robot queries).
 
-Examples
-  python experiments/serve.py policy.npz                       # http://127.0.0.1:8000
-  python experiments/serve.py policy.npz --port 8100 --verbose
+Examples (daddpg-serve = python experiments/serve.py)
+  daddpg-serve policy.npz                       # http://127.0.0.1:8000
+  daddpg-serve policy.npz --port 8100 --verbose
 
 Endpoints: POST /act {"observation": [[25],[25]], "desired_goal": [[3],[3]]} -> {"action": [8],
 "per_arm": [[4],[4]], "latency_ms"}; GET /health; GET /info. Loopback by default: binding
@@ -19,7 +19,7 @@ import sys
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="serve.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("policy", help="exported .npz (experiments/export.py)")
+    p.add_argument("policy", help="exported .npz (daddpg-export)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 = any free)")
     p.add_argument("--max-body", type=int, default=64 * 1024, help="largest request body, bytes")

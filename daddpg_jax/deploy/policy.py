@@ -9,24 +9,56 @@ Both accept extra leading (batch) axes: [..., 2, obs], [..., 2, 3] -> [..., 8] /
 The computation repeats the trainer's ``TrainFns.act`` step for step in float32 (clip, normalize,
 build each variant's actor inputs, MLP, tanh), and matches it to 1e-5 on CPU.
 
-Imports NumPy and the standard library only: keep it that way (tests/test_deploy.py checks it
-in a subprocess where importing jax fails).
+What depends on the algorithm variant (number of agents, what each actor sees, the size of
+each agent's action slot) is read from the variant's row in ``daddpg_jax.algo.variants``; the
+task's settings from ``mjx_envs.settings``. Both are standard library only, so this module
+imports NumPy and the standard library only: keep it that way (tests/test_deploy.py checks it
+in a subprocess where importing jax or mujoco fails).
 """
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from daddpg_jax.algo import variants
+from mjx_envs import schema
+from mjx_envs import settings as task_settings_lib
+
 FORMAT_VERSION = 1
-ALGOS = ("daddpg", "maddpg", "ddpg", "single")
+"""Version of the ``.npz`` layout, written by ``daddpg_jax.running.export`` and read here."""
 
 
 class PolicyFormatError(ValueError):
     """The .npz file is not a policy export this code can read."""
+
+
+def task_settings(task: str, saved: Mapping[str, Any] | None = None):
+    """The task's settings (a ``mjx_envs.settings.TaskConfig``) holding the values in ``saved``
+    (a policy export's ``env``; keys that are not fields, such as ``dt``, are ignored). Fields
+    that ``saved`` lacks (an export written before the field existed) keep the values of
+    ``mjx_envs.settings.default_config(task)``. Raises ValueError for an unknown task or a value
+    outside its field's range."""
+    cfg = task_settings_lib.default_config(task)
+    names = schema.fields(cfg)
+    return task_settings_lib.replace_config(
+        cfg, **{k: v for k, v in (saved or {}).items() if k in names})
+
+
+def env_settings(task: str, saved: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A policy export's env settings, JSON-ready: every field of ``task_settings(task,
+    saved)``, ``dt`` (the control period, ``timestep * n_substeps`` unless saved) and any other
+    key ``saved`` holds. A task that ``mjx_envs.settings`` does not know keeps ``saved`` as is."""
+    out = dict(saved or {})
+    if task in task_settings_lib.TASK_SETTINGS:
+        out.update(schema.to_dict(task_settings(task, saved)))
+    if "dt" not in out and "timestep" in out and "n_substeps" in out:
+        out["dt"] = float(out["timestep"]) * int(out["n_substeps"])
+    return out
 
 
 def _check_input(name: str, x, tail: tuple[int, ...]) -> np.ndarray:
@@ -43,14 +75,16 @@ def _check_input(name: str, x, tail: tuple[int, ...]) -> np.ndarray:
 
 
 class NumpyPolicy:
-    """Deterministic actors of an exported run (see ``daddpg_jax/running/export.py`` for the format)."""
+    """Deterministic actors of an exported run (format: ``daddpg_jax/running/export.py``)."""
 
     def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray],
                  obs_mean, obs_std, goal_mean, goal_std, meta: dict[str, Any]):
         self.meta = meta
         self.algo = str(meta["algo"])
-        if self.algo not in ALGOS:
-            raise PolicyFormatError(f"unknown algo {self.algo!r} in policy file")
+        if self.algo not in variants.VARIANTS:
+            raise PolicyFormatError(f"unknown algo {self.algo!r} in policy file; this code "
+                                    f"reads {', '.join(variants.ALGOS)}")
+        self.variant = variants.get(self.algo)
         self.task = str(meta["task"])
         self.obs_size = int(meta["obs_size"])
         self.goal_size = int(meta["goal_size"])
@@ -67,12 +101,16 @@ class NumpyPolicy:
         self.goal_mean = np.asarray(goal_mean, np.float32)
         self.goal_std = np.asarray(goal_std, np.float32)
         self.num_agents = int(self.weights[0].shape[0])
+        try:
+            self._env = env_settings(self.task, meta.get("env"))
+        except ValueError as e:
+            raise PolicyFormatError(f"env settings of the policy file: {e}") from None
         self._validate()
 
     # -- loading ------------------------------------------------------------------------------
 
     @classmethod
-    def load(cls, path) -> "NumpyPolicy":
+    def load(cls, path) -> NumpyPolicy:
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"policy file {path!r} not found")
@@ -99,21 +137,32 @@ class NumpyPolicy:
         return cls(ws, bs, *norm, meta=meta)
 
     def _validate(self):
-        a_in = self.meta["actor_input_dim"]
+        v = self.variant
+        if (self.num_arms, self.arm_action) != (variants.NUM_ARMS, variants.ARM_ACTION):
+            raise PolicyFormatError(f"{self.num_arms} arms with {self.arm_action} action "
+                                    f"entries each; this code drives {variants.NUM_ARMS} arms "
+                                    f"with {variants.ARM_ACTION}")
+        if self.action_size != self.num_arms * self.arm_action:
+            raise PolicyFormatError(f"action size {self.action_size}, expected "
+                                    f"{self.num_arms * self.arm_action}")
+        if self.num_agents != v.num_agents:
+            raise PolicyFormatError(f"{self.num_agents} agents for algo {self.algo} "
+                                    f"(expected {v.num_agents})")
+        a_in = v.input_dims(self.obs_size, self.goal_size)[0]
+        if int(self.meta["actor_input_dim"]) != a_in:
+            raise PolicyFormatError(f"actor input size {self.meta['actor_input_dim']}, expected "
+                                    f"{a_in} for algo {self.algo}")
         prev = a_in
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             if w.ndim != 3 or w.shape[0] != self.num_agents or w.shape[1] != prev:
                 raise PolicyFormatError(f"actor layer {i} weights have shape {w.shape}")
             if b.shape != (self.num_agents, w.shape[2]):
                 raise PolicyFormatError(f"actor layer {i} biases have shape {b.shape}")
             prev = w.shape[2]
-        expect_out = 2 * self.arm_action if self.algo == "single" else self.arm_action
-        if prev != expect_out:
-            raise PolicyFormatError(f"actor output size {prev}, expected {expect_out}")
-        expect_agents = 1 if self.algo == "single" else self.num_arms
-        if self.num_agents != expect_agents:
-            raise PolicyFormatError(f"{self.num_agents} agents for algo {self.algo}")
-        for name, arr, size in (("obs", self.obs_mean, self.obs_size), ("obs", self.obs_std, self.obs_size),
+        if prev != v.agent_action_dim:
+            raise PolicyFormatError(f"actor output size {prev}, expected {v.agent_action_dim}")
+        for name, arr, size in (("obs", self.obs_mean, self.obs_size),
+                                ("obs", self.obs_std, self.obs_size),
                                 ("goal", self.goal_mean, self.goal_size),
                                 ("goal", self.goal_std, self.goal_size)):
             if arr.shape != (self.num_arms, size):
@@ -127,8 +176,10 @@ class NumpyPolicy:
 
     @property
     def env(self) -> dict[str, Any]:
-        """Env settings saved with the policy (dt, max_delta, workspace boxes, ...)."""
-        return self.meta["env"]
+        """Env settings of the run (dt, max_delta, workspace boxes, ...): the values saved with
+        the policy, and ``mjx_envs.settings.default_config(task)``'s for fields the file lacks
+        (see `env_settings`). A copy: changing it changes nothing in the policy."""
+        return json.loads(json.dumps(self._env))
 
     @property
     def obs_layout(self) -> dict[str, tuple[int, int]]:
@@ -141,7 +192,7 @@ class NumpyPolicy:
                     num_agents=self.num_agents, obs_size=self.obs_size, goal_size=self.goal_size,
                     action_size=self.action_size, obs_layout=m["obs_layout"],
                     obs_fields=m.get("obs_fields"), layer_sizes=m["layer_sizes"],
-                    action=m["action"], env=m["env"],
+                    action=m["action"], env=self.env,
                     checkpoint_step=m.get("source", {}).get("checkpoint_step"))
 
     # -- inference ----------------------------------------------------------------------------
@@ -151,18 +202,19 @@ class NumpyPolicy:
         return np.clip((x - mean) / std, -self.norm_clip, self.norm_clip)
 
     def _actor_inputs(self, o, g):
-        """o [B, 2, obs], g [B, 2, 3] (normalized) -> [A, B, in] (networks.actor_inputs)."""
-        b = o.shape[0]
-        if self.algo in ("daddpg", "single"):
+        """o [B, 2, obs], g [B, 2, 3] (normalized) -> [A, B, in], as the variant's row says
+        (``networks.actor_inputs``): 'both' = every agent sees the flattened (o_1, o_2, g_1,
+        g_2); 'own' = agent i sees its arm's (o_i, g_i)."""
+        if self.variant.actor_sees == variants.BOTH:
+            b = o.shape[0]
             x = np.concatenate([o.reshape(b, -1), g.reshape(b, -1)], -1)
             return np.broadcast_to(x, (self.num_agents,) + x.shape)
-        x = np.concatenate([o, g], -1)
-        return np.moveaxis(x, -2, 0)
+        return np.moveaxis(np.concatenate([o, g], -1), -2, 0)
 
     def _forward(self, x):
         """x [A, B, in] -> [A, B, out]."""
         n = len(self.weights)
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             x = np.matmul(x, w) + b[:, None, :]
             x = np.maximum(x, np.float32(0.0)) if i < n - 1 else np.tanh(x)
         return x
@@ -180,10 +232,7 @@ class NumpyPolicy:
         o = self._normalize(o, self.obs_mean, self.obs_std)
         g = self._normalize(g, self.goal_mean, self.goal_std)
         pi = self._forward(self._actor_inputs(o, g))
-        if self.algo == "single":
-            a = pi[0]
-        else:
-            a = np.concatenate([pi[i] for i in range(pi.shape[0])], -1)
+        a = np.concatenate(list(pi), -1)  # the agents' action slots in agent order
         return a.reshape(lead_o + (self.action_size,)).astype(np.float32)
 
     def act_per_arm(self, observation, desired_goal) -> np.ndarray:

@@ -4,19 +4,19 @@ Units: metres, radians, seconds everywhere. Frames:
 
 - **world** (the simulator's and the policy's frame): x forward from the arms' frame towards
   the table, z up; the left arm (index 0) at y = +0.25 m, the right arm (index 1) at
-  y = -0.25 m, both bases 0.40 m above the floor (``daddpg_jax.deploy.ur3.BASE_POS``), each turned by
-  ``BASE_YAW`` = pi about z.
+  y = -0.25 m, both bases 0.40 m above the floor (``daddpg_jax.deploy.ur3.BASE_POS``), each
+  turned by ``BASE_YAW`` = pi about z.
 - **base** (per arm): the UR controller's base frame, in which ``getl()`` reports and
   ``servoL``/``movel`` take the tool pose ``[x, y, z, rx, ry, rz]`` (position + rotation
-  vector). It equals frame 0 of UR's DH table (``daddpg_jax.deploy.ur3``), which is what the simulator's
-  arms are built from: ``p_world = R_z(yaw) p_base + base_pos``.
+  vector). It equals frame 0 of UR's DH table (``daddpg_jax.deploy.ur3``), which is what the
+  simulator's arms are built from: ``p_world = R_z(yaw) p_base + base_pos``.
 
 Control: the policy runs every control period ``dt`` = ``timestep * n_substeps`` = 0.04 s
 (25 Hz). Arm i's action ``a[4i:4i+4] = [dx, dy, dz, finger]`` in [-1, 1] moves that arm's
 Cartesian tool target by ``max_delta * clip(a[:3], -1, 1)`` metres in the **world** frame
 (0.05 m per axis at most: up to 1.25 m/s per axis at 25 Hz, so a real robot needs the speed cap
-of ``daddpg_jax.deploy.safety``), with the tool pointing straight down; ``finger`` maps to the opening
-of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice that), or to
+of ``daddpg_jax.deploy.safety``), with the tool pointing straight down; ``finger`` maps to the
+opening of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice that), or to
 ``locked_opening`` when the task locks the fingers (reach, push).
 
 ``run_episode`` / ``run_episodes`` are the robot client's control loop (policy service ->
@@ -25,15 +25,18 @@ safety layer -> targets), used sim-to-sim with ``mjx_envs.numpy_env``. See docs/
 
 from __future__ import annotations
 
-from typing import Mapping, Optional
+from collections.abc import Mapping
 
 import numpy as np
 
 from daddpg_jax.deploy import ur3
+from mjx_envs.settings import TaskConfig
 
 ARMS = ("l", "r")  # index 0 = left, 1 = right
-CONTROL_PERIOD_S = 0.04
-"""Default env dt: timestep 0.01 s x 4 substeps (the export stores the run's own value)."""
+_DEFAULTS = TaskConfig()
+CONTROL_PERIOD_S = _DEFAULTS.timestep * _DEFAULTS.n_substeps
+"""Default env dt (``mjx_envs.settings``: timestep 0.01 s x 4 substeps, 0.04 s); the export
+stores the run's own value."""
 TOOL_DOWN_QUAT_WORLD = np.array([0.0, 0.70710678, 0.70710678, 0.0])
 """Fixed tool orientation of the simulator's targets (w, x, y, z), world frame (assets/*.xml)."""
 
@@ -46,8 +49,9 @@ def _arm(arm) -> str:
     raise ValueError(f"arm must be 0/'l'/'left' or 1/'r'/'right', got {arm!r}")
 
 
-def control_period(env: Optional[Mapping] = None) -> float:
-    """Seconds between policy queries: ``env['dt']`` of a policy export, else 0.04 s."""
+def control_period(env: Mapping | None = None) -> float:
+    """Seconds between policy queries: ``env['dt']`` of a policy export, else
+    ``CONTROL_PERIOD_S``."""
     return float(env["dt"]) if env is not None else CONTROL_PERIOD_S
 
 
@@ -150,8 +154,8 @@ def cartesian_deltas_world(action, max_delta: float) -> np.ndarray:
     return max_delta * split_action(action)[:, :3]
 
 
-def finger_openings(action, finger_stroke: float = 0.04, lock_fingers: bool = False,
-                    locked_opening: float = 0.0) -> np.ndarray:
+def finger_openings(action, finger_stroke: float = _DEFAULTS.finger_stroke,
+                    lock_fingers: bool = False, locked_opening: float = 0.0) -> np.ndarray:
     """Per-arm opening of each finger [2] (m); the jaw gap is twice this."""
     if lock_fingers:
         return np.full(2, float(locked_opening))
@@ -181,14 +185,15 @@ def servol_targets(action, tcp_pose_base, max_delta: float, tcp_target_world=Non
 
 # -- the client's control loop (sim-to-sim with mjx_envs.numpy_env, or a real robot driver) --
 
-def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, goal=None,
-                deadline_s: Optional[float] = None, grip_slice=(0, 3)) -> dict:
+def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
+                deadline_s: float | None = None, grip_slice=(0, 3)) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
     env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a real-robot driver with the same
     ``reset``/``command_targets``/``finger_ctrl``/``step_targets``/``target``);
-    client: ``daddpg_jax.deploy.server.PolicyClient``; safety: ``daddpg_jax.deploy.safety.SafetyFilter``.
+    client: ``daddpg_jax.deploy.server.PolicyClient``; safety:
+    ``daddpg_jax.deploy.safety.SafetyFilter``.
     An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
     limits' deadline) makes both arms hold. Returns the episode's summary.
     """
@@ -208,8 +213,8 @@ def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, 
         if action is None or rtt > deadline:
             why = info.get("error") or ("late" if action is not None else "malformed")
             errors.append(why)
-            decision = safety.hold(env.target,
-                                   reason="late" if rtt > deadline and action is not None else "stop")
+            late = rtt > deadline and action is not None
+            decision = safety.hold(env.target, reason="late" if late else "stop")
             stops += 1
         else:
             proposed, ctrl = env.command_targets(action)
@@ -223,17 +228,21 @@ def run_episode(env, client, safety, rng: Optional[np.random.Generator] = None, 
 
 
 def run_episodes(env, client, safety, episodes: int, seed: int = 0,
-                 deadline_s: Optional[float] = None) -> dict:
+                 deadline_s: float | None = None) -> dict:
     """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; success rate etc."""
     rng = np.random.default_rng(seed)
     eps = [run_episode(env, client, safety, rng=rng, deadline_s=deadline_s)
            for _ in range(int(episodes))]
     n = max(len(eps), 1)
+
+    def stat(fn, key):
+        return float(fn([e[key] for e in eps])) if eps else float("nan")
+
     return dict(episodes=len(eps), success_rate=sum(e["success"] for e in eps) / n,
                 stops=int(sum(e["stops"] for e in eps)),
                 safety_counts=dict(safety.counts),
-                mean_final_distance=float(np.mean([e["final_distance"] for e in eps])) if eps else float("nan"),
-                min_arm_clearance=float(min(e["min_arm_clearance"] for e in eps)) if eps else float("nan"),
-                rtt_ms_p50=float(np.median([e["rtt_ms_p50"] for e in eps])) if eps else float("nan"),
-                rtt_ms_max=float(max(e["rtt_ms_max"] for e in eps)) if eps else float("nan"),
+                mean_final_distance=stat(np.mean, "final_distance"),
+                min_arm_clearance=stat(min, "min_arm_clearance"),
+                rtt_ms_p50=stat(np.median, "rtt_ms_p50"),
+                rtt_ms_max=stat(max, "rtt_ms_max"),
                 first_errors=[err for e in eps for err in e["errors"]][:5])

@@ -13,8 +13,8 @@ Applied every control period by the robot client, in this order:
    between the arms is computed with ``mjx_envs.observation.arm_clearance`` (the trainer's own
    arm-contact check). A move whose predicted gap is below ``min_clearance`` and smaller than
    the current gap is refused: first one arm is stopped (the one that moves less), else both;
-   a stopped arm keeps its previous target if that is safe, else its measured position. Moves that increase the gap are always allowed, so arms that are too close can
-   separate.
+   a stopped arm keeps its previous target if that is safe, else its measured position. Moves
+   that increase the gap are always allowed, so arms that are too close can separate.
 
 The prediction is first order (the arm follows its target within one period; a real arm's
 links move differently, the elbow most), so set ``min_clearance`` with margin. Everything here
@@ -24,14 +24,17 @@ is NumPy; the limits default from the env settings saved in the policy export.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional
+from typing import Any
 
 import numpy as np
 
 from mjx_envs.observation import arm_clearance
+from mjx_envs.settings import TaskConfig
 
 NUM_ARMS = 2
+_DEFAULTS = TaskConfig()  # settings an env mapping lacks
 # how far each link point (shoulder, elbow, wrist 1, flange, tool centre) moves with the target
 LINK_FOLLOW = np.array([0.0, 0.5, 1.0, 1.0, 1.0], np.float32)
 
@@ -44,12 +47,12 @@ class SafetyLimits:
     min_clearance: float  # smallest allowed capsule gap between the arms, m
     deadline_s: float  # latest acceptable answer of the policy service, s
     finger_low: float = 0.0  # finger opening range, m
-    finger_high: float = 0.04
+    finger_high: float = _DEFAULTS.finger_stroke
 
     @classmethod
-    def from_env(cls, env: Mapping[str, Any], max_speed: Optional[float] = None,
-                 min_clearance: Optional[float] = None, deadline_s: Optional[float] = None,
-                 margin: float = 0.0) -> "SafetyLimits":
+    def from_env(cls, env: Mapping[str, Any], max_speed: float | None = None,
+                 min_clearance: float | None = None, deadline_s: float | None = None,
+                 margin: float = 0.0) -> SafetyLimits:
         """Limits from a policy export's env settings (``NumpyPolicy.env``).
 
         max_speed: m/s (default: what the policy can command, ``sqrt(3) * max_delta / dt``);
@@ -65,18 +68,20 @@ class SafetyLimits:
         high = np.asarray(env["workspace_high"], np.float32) - np.float32(margin)
         if np.any(low > high):
             raise ValueError(f"workspace margin {margin} m leaves an empty box")
+        if min_clearance is None:
+            min_clearance = env.get("arm_clearance", _DEFAULTS.arm_clearance)
         return cls(workspace_low=low, workspace_high=high, max_step=max_step,
-                   min_clearance=float(env.get("arm_clearance", 0.01) if min_clearance is None
-                                       else min_clearance),
+                   min_clearance=float(min_clearance),
                    deadline_s=dt if deadline_s is None else float(deadline_s),
-                   finger_low=0.0, finger_high=float(env.get("finger_stroke", 0.04)))
+                   finger_low=0.0,
+                   finger_high=float(env.get("finger_stroke", _DEFAULTS.finger_stroke)))
 
 
 @dataclass
 class SafetyDecision:
     target: np.ndarray  # [2, 3] Cartesian targets to send
     stopped: bool  # the answer was refused and both arms hold
-    reasons: list = field(default_factory=list)  # what the layer changed, e.g. ["speed", "workspace"]
+    reasons: list = field(default_factory=list)  # what the layer changed: ["speed", ...]
     clearance_before: float = float("nan")
     clearance_after: float = float("nan")  # predicted
 
@@ -93,7 +98,7 @@ class SafetyFilter:
     # -- pieces (tested one by one) -----------------------------------------------------------
 
     @staticmethod
-    def validate_action(action, size: int = 8) -> Optional[np.ndarray]:
+    def validate_action(action, size: int = 8) -> np.ndarray | None:
         """The action as float32 [size], or None when it is malformed (shape, type, NaN/inf)."""
         try:
             a = np.asarray(action, dtype=np.float64)

@@ -1,8 +1,8 @@
 """Policy service: the decision service the robot queries every control period (HTTP + JSON).
 
-Standard library only (``http.server.ThreadingHTTPServer``) plus NumPy and ``deploy.py``: no
-web framework to install on the robot computer, one thread per connection, persistent
-(HTTP/1.1 keep-alive) connections. Loopback (127.0.0.1) by default.
+Standard library only (``http.server.ThreadingHTTPServer``) plus NumPy and
+``daddpg_jax.deploy.policy``: no web framework to install on the robot computer, one thread per
+connection, persistent (HTTP/1.1 keep-alive) connections. Loopback (127.0.0.1) by default.
 
 Endpoints
     POST /act    {"observation": [[25 floats], [25 floats]], "desired_goal": [[3], [3]],
@@ -27,7 +27,7 @@ import socket
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -77,7 +77,8 @@ def parse_matrix(name: str, value: Any, rows: int, cols: int) -> np.ndarray:
     """A JSON value that must be ``rows`` lists of ``cols`` finite numbers -> float32 array."""
     if not isinstance(value, list) or len(value) != rows:
         got = f"a list of {len(value)}" if isinstance(value, list) else type(value).__name__
-        raise RequestError(400, f"'{name}' must be a list of {rows} rows of {cols} numbers; got {got}")
+        raise RequestError(400, f"'{name}' must be a list of {rows} rows of {cols} numbers; "
+                                f"got {got}")
     out = np.empty((rows, cols), np.float64)
     for i, row in enumerate(value):
         if not isinstance(row, list) or len(row) != cols:
@@ -145,7 +146,10 @@ class _Handler(BaseHTTPRequestHandler):
         try:
             fn()
         except RequestError as e:
-            self._error(e.status, e.message, close=e.close)
+            try:
+                self._error(e.status, e.message, close=e.close)
+            except OSError:  # the client is gone (e.g. it sent a short body and closed)
+                self.close_connection = True
         except (ConnectionError, TimeoutError):
             self.close_connection = True
         except Exception as e:  # noqa: BLE001 - the service must survive any request
@@ -280,7 +284,7 @@ class PolicyServer:
                  max_body: int = MAX_BODY, max_depth: int = MAX_DEPTH, verbose: bool = False):
         self.policy = policy
         self.httpd = _Server((host, int(port)), policy, max_body, max_depth, verbose)
-        self._thread: Optional[threading.Thread] = None
+        self._thread: threading.Thread | None = None
 
     @property
     def address(self) -> tuple[str, int]:
@@ -298,9 +302,10 @@ class PolicyServer:
     def stats(self) -> dict:
         return dict(self.httpd.stats)
 
-    def start(self) -> "PolicyServer":
-        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.1},
-                                        name="policy-server", daemon=True)
+    def start(self) -> PolicyServer:
+        self._thread = threading.Thread(target=self.httpd.serve_forever,
+                                        kwargs={"poll_interval": 0.1}, name="policy-server",
+                                        daemon=True)
         self._thread.start()
         return self
 
@@ -357,7 +362,7 @@ class PolicyClient:
             self._conn.close()
             self._conn = None
 
-    def request(self, method: str, path: str, payload: Optional[dict] = None):
+    def request(self, method: str, path: str, payload: dict | None = None):
         """(status, decoded JSON) of one request; raises OSError/ValueError on failure."""
         conn = self._connection()
         body = None if payload is None else json.dumps(payload).encode()

@@ -1,12 +1,13 @@
 """Export a trained run to one NumPy ``.npz`` that the robot side loads without JAX.
 
-JAX side of the deployment path (``daddpg_jax/deploy.py`` is the NumPy side)::
+JAX side of the deployment path (``daddpg_jax/deploy/`` is the NumPy side)::
 
     from daddpg_jax.running.export import export_run
     export_run("runs/reach", "policy.npz")            # latest checkpoint
     export_run("runs/reach", "policy.npz", step=2)    # a given checkpoint
 
-File contents (``FORMAT_VERSION`` 1; every array float32, no pickled objects):
+File contents (``daddpg_jax.deploy.FORMAT_VERSION`` 1; every array float32, no pickled
+objects):
 
 ==========================  ==============================================================
 key                         value
@@ -18,57 +19,54 @@ key                         value
 ``goal_norm/mean``, ``std`` [2, 3] per-arm goal statistics
 ``meta``                    JSON text: format version, task, algo, layer sizes, activations,
                             normalizer clip values and eps, action scaling, observation layout,
-                            the env settings a robot needs, and where the weights came from
+                            the env settings of the run (every field of the task's
+                            ``mjx_envs.settings`` config, and ``dt``), and where the weights
+                            came from
 ==========================  ==============================================================
 
-``A`` is 2 (one actor per arm; arm 0 = left) or 1 for ``single`` (one actor, 8-d output).
-The actor is ``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
-``daddpg_jax.algo.networks.actor_inputs``.
+``A`` is the variant's ``num_agents`` (``daddpg_jax.algo.variants``): 2 (one actor per arm;
+arm 0 = left, each with a 4-d action slot) or 1 (one actor, 8-d output). The actor is
+``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
+``daddpg_jax.algo.networks.actor_inputs``. The reader (``daddpg_jax.deploy.NumpyPolicy``)
+fills env settings an older export lacks from ``mjx_envs.settings.default_config(task)``.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
-FORMAT_VERSION = 1
+from daddpg_jax.algo import variants
+from daddpg_jax.deploy.policy import FORMAT_VERSION
+from mjx_envs import schema
 
 
 class ExportError(RuntimeError):
     """A run cannot be exported (no checkpoint, missing config, ...); the message says why."""
 
 
+def _plain(v):
+    """A settings value as plain JSON (NumPy scalars and arrays too)."""
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.generic, np.ndarray)):
+        return _plain(v.tolist())
+    return v
+
+
 def _env_settings(env) -> dict:
-    """Settings of ``env`` that the robot side needs (plain JSON values)."""
-    cfg = env.config
-
-    def tl(x):
-        return np.asarray(x, np.float64).tolist()
-
-    return dict(
-        scene=str(cfg.scene),
-        episode_length=int(cfg.episode_length),
-        n_substeps=int(cfg.n_substeps),
-        timestep=float(cfg.timestep),
-        dt=float(env.dt),
-        cone=str(cfg.cone),
-        max_delta=float(cfg.max_delta),
-        lock_fingers=bool(cfg.lock_fingers),
-        locked_opening=float(cfg.locked_opening),
-        finger_stroke=float(cfg.finger_stroke),
-        distance_threshold=float(cfg.distance_threshold),
-        arm_clearance=float(cfg.arm_clearance),
-        workspace_low=tl(cfg.workspace_low),
-        workspace_high=tl(cfg.workspace_high),
-        goal_low=tl(cfg.goal_low),
-        goal_high=tl(cfg.goal_high),
-    )
+    """The env settings of the run, plain JSON: every field of the task's settings
+    (``env.config``, a ``mjx_envs.settings`` config, as the run used it) and the control period
+    ``dt``."""
+    out = {k: _plain(v) for k, v in schema.to_dict(env.config).items()}
+    out["dt"] = float(env.dt)
+    return out
 
 
-def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, Any]:
+def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]:
     """The export's arrays and metadata from a TrainState (no file written).
 
     ``state``: a ``daddpg_jax.algo.train.TrainState`` (only ``agent.actor`` and the normalizers are
@@ -76,10 +74,10 @@ def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, A
     """
     import jax
 
-    from daddpg_jax.algo import networks as nets
     from daddpg_jax.algo import normalizer as norm
     from mjx_envs import observation as obs_lib
 
+    variant = variants.get(cfg.algo)
     actor = jax.device_get(state.agent.actor)
     layers = actor["params"]
     names = sorted(layers, key=lambda n: int(n.split("_")[-1]))  # Dense_0, Dense_1, ...
@@ -92,6 +90,9 @@ def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, A
         arrays[f"actor/b{i}"] = b
         sizes.append([int(w.shape[1]), int(w.shape[2])])
     n_agents = int(arrays["actor/W0"].shape[0])
+    if n_agents != variant.num_agents:
+        raise ExportError(f"the actors have {n_agents} agents; algo {cfg.algo} has "
+                          f"{variant.num_agents}")
     for key, ns in (("obs_norm", state.obs_norm), ("goal_norm", state.goal_norm)):
         arrays[f"{key}/mean"] = np.asarray(jax.device_get(ns.mean), np.float32)
         arrays[f"{key}/std"] = np.asarray(jax.device_get(norm.std(ns, cfg.norm_eps)), np.float32)
@@ -106,8 +107,8 @@ def policy_arrays(state, cfg, env, source: Optional[dict] = None) -> dict[str, A
         obs_size=int(env.obs_size),
         goal_size=int(env.goal_size),
         action_size=int(env.action_size),
-        arm_action=int(nets.ARM_ACTION),
-        actor_input_dim=int(nets.input_dims(cfg.algo, env.obs_size, env.goal_size)[0]),
+        arm_action=int(variants.ARM_ACTION),
+        actor_input_dim=int(variant.input_dims(env.obs_size, env.goal_size)[0]),
         layer_sizes=sizes,
         hidden_activation="relu",
         output_activation="tanh",
@@ -142,21 +143,21 @@ def write_npz(arrays: dict[str, Any], out) -> str:
     return out
 
 
-def export_state(state, cfg, env, out, source: Optional[dict] = None) -> str:
+def export_state(state, cfg, env, out, source: dict | None = None) -> str:
     """Exports a TrainState held in memory (tests, notebooks) to ``out``."""
     return write_npz(policy_arrays(state, cfg, env, source), out)
 
 
-def export_run(run_dir, out, step: Optional[int] = None) -> str:
+def export_run(run_dir, out, step: int | None = None) -> str:
     """Exports checkpoint ``step`` (default: latest) of the run in ``run_dir`` to ``out``.
 
     Raises ExportError with a clear message when the run has no config or no checkpoint.
     """
     import jax
 
+    from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
     from daddpg_jax.running.runner import make_env
-    from daddpg_jax.algo.train import make_train_fns
 
     run_dir = os.fspath(run_dir)
     try:
@@ -170,6 +171,6 @@ def export_run(run_dir, out, step: Optional[int] = None) -> str:
     template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
     state, used = ckpt.restore(run_dir, template, step, restore_buffer=False)
     source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used),
-                  git_revision=payload.get("git_revision"), env_overrides=payload.get("env_overrides"),
-                  train_config=cfg.to_dict())
+                  git_revision=payload.get("git_revision"),
+                  env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict())
     return export_state(state, cfg, env, out, source)
