@@ -8,17 +8,15 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import losses as agent_lib
-from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.algo import networks as nets
+from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.running import checkpoint as ckpt
 from tests import toy_env
-from tests.test_agent import HIDDEN, OBS, random_batch
+from tests.conftest import HIDDEN, OBS, TINY, T, random_batch, tree_equal
 
-T = 10
 N_DEMOS = 6
-TINY = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=3, n_batches=4, batch_size=32,
-                   buffer_size=20 * T * 4, n_test_episodes=16, seed=0)
 DEMO = TINY.replace(n_demos=N_DEMOS, demo_batch=16)
 
 
@@ -52,13 +50,14 @@ def demo_epoch(demo_fns):
 
 @pytest.mark.parametrize("algo", ["daddpg", "single"])
 def test_bc_loss_matches_numpy(algo):
-    n_agents = 1 if algo == "single" else 2
+    n_agents = variants.get(algo).num_agents
     batch = random_batch(jax.random.PRNGKey(3), n_agents)
     demo = np.zeros(batch["a"].shape[0], bool)
     demo[5:] = True
     batch["demo"] = jnp.asarray(demo)
     for q_filter in (False, True):
-        cfg = TrainConfig(algo=algo, hidden=HIDDEN, n_demos=1, bc_weight=2.5, q_filter=q_filter)
+        cfg = TrainConfig(algo=algo, hidden=HIDDEN, n_demos=1, bc_weight=2.5,
+                          q_filter=q_filter)
         learner = agent_lib.make_learner(cfg, (-1.05, 0.0))
         st = agent_lib.init_agent_state(jax.random.PRNGKey(0), learner, HIDDEN, OBS)
         pi = np.asarray(agent_lib.policy_actions(learner, st.actor, batch["o"], batch["g"]))
@@ -68,7 +67,8 @@ def test_bc_loss_matches_numpy(algo):
         if q_filter:
             mask = np.asarray(nets.own_action_mask(algo))
             mixed = np.where(mask[:, None, :], np.tile(pi, (1, 1, 8 // pi.shape[-1])), a[None])
-            q_pi = np.asarray(agent_lib.q_values(learner, st.critic, batch["o"], batch["g"], mixed))
+            q_pi = np.asarray(agent_lib.q_values(learner, st.critic, batch["o"], batch["g"],
+                                                 mixed))
             q_demo = np.asarray(agent_lib.q_values(learner, st.critic, batch["o"], batch["g"],
                                                    np.broadcast_to(a, (n_agents,) + a.shape)))
             keep = (q_demo > q_pi).astype(np.float32)
@@ -82,7 +82,8 @@ def test_bc_loss_matches_numpy(algo):
         # the actor loss is the plain DDPG loss + bc_weight * BC
         plain = {k: v for k, v in batch.items() if k != "demo"}
         _, aux0 = agent_lib.actor_loss(st.actor, st.critic, plain, learner)
-        np.testing.assert_allclose(aux["actor_loss"], np.asarray(aux0["actor_loss"]) + 2.5 * want_bc,
+        np.testing.assert_allclose(aux["actor_loss"],
+                                   np.asarray(aux0["actor_loss"]) + 2.5 * want_bc,
                                    rtol=1e-5, atol=1e-5)
         assert "bc_loss" not in aux0
 
@@ -117,11 +118,10 @@ def test_demos_played_at_init(demo_fns, demo_epoch, env):
     assert float(s0.obs_norm.count) == N_DEMOS * T and int(s0.buffer.size) == 0
     # same seed -> same demos; demos have their own PRNG stream: agents equal those without demos
     again = demo_fns.init()
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(again.demos), jax.tree.leaves(d)))
+    assert tree_equal(again.demos, d)
     plain = make_train_fns(env, TINY).init()
     assert plain.demos.actions.shape[0] == 0 and float(plain.obs_norm.count) == 0
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(plain.agent),
-                                                     jax.tree.leaves(s0.agent)))
+    assert tree_equal(plain.agent, s0.agent)
 
 
 def test_epoch_with_demos_logs_bc_and_compiles_once(demo_fns, demo_epoch):
@@ -141,10 +141,8 @@ def test_checkpoint_keeps_demos_out_and_restores_them(demo_fns, demo_epoch, tmp_
     ckpt.save(tmp_path, s1, step=1)
     template = demo_fns.init(jax.random.PRNGKey(0))
     restored, _ = ckpt.restore(tmp_path, template)
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.agent),
-                                                     jax.tree.leaves(s1.agent)))
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.demos),
-                                                     jax.tree.leaves(s1.demos)))
+    assert tree_equal(restored.agent, s1.agent)
+    assert tree_equal(restored.demos, s1.demos)
 
 
 def test_demo_config_errors(env):
@@ -177,13 +175,11 @@ def test_restore_into_abstract_or_demo_free_template(demo_fns, demo_epoch, env, 
     abstract = jax.eval_shape(demo_fns.init, jax.random.PRNGKey(0))
     restored, _ = ckpt.restore(tmp_path, abstract)
     assert restored.demos.actions.shape == (N_DEMOS, T, 8)
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.agent),
-                                                     jax.tree.leaves(s1.agent)))
+    assert tree_equal(restored.agent, s1.agent)
     plain = make_train_fns(env, DEMO.replace(n_demos=0)).init()
     restored, _ = ckpt.restore(tmp_path, plain)
     assert restored.demos.actions.shape[0] == 0
-    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(restored.obs_norm),
-                                                     jax.tree.leaves(s1.obs_norm)))
+    assert tree_equal(restored.obs_norm, s1.obs_norm)
 
 
 def test_runner_logs_bc_columns(env, tmp_path):

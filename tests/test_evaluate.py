@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from daddpg_jax.analysis import evaluation
-from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.running.runner import train
+from tests import conftest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 N_TEST = 12
-TINY = TrainConfig(task="reach", physics="c", hidden=(32, 32), n_cycles=2, n_batches=2,
-                   batch_size=64, buffer_size=10_000, n_test_episodes=N_TEST, n_epochs=1, seed=1)
+TINY = conftest.TINY.replace(task="reach", physics="c", num_envs=2, n_cycles=2, n_batches=2,
+                             batch_size=64, buffer_size=10_000, n_test_episodes=N_TEST,
+                             n_epochs=1, seed=1)
 
 
 @pytest.fixture(scope="module")

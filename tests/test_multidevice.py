@@ -17,9 +17,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PRELUDE = """
 import json, os, sys
 import jax, jax.numpy as jnp, numpy as np
-jax.config.update("jax_compilation_cache_dir",
-                  os.environ.get("DADDPG_JAX_CACHE", os.path.expanduser("~/.cache/daddpg_jax_jit")))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+from tests.conftest import LEARN, LEARN_ENV, TINY, random_batch, tree_equal  # + CPU, jit cache
 assert len(jax.local_devices()) == 2, jax.local_devices()
 """
 
@@ -37,46 +35,50 @@ def run_2dev(body: str, timeout: int = 240) -> dict:
 
 
 def test_sharded_update_equals_unsharded_update():
+    """What the trainer runs on each device: `losses.update(..., axis_name=AXIS)` on the
+    device's slice of the batch under `sharding.shard_map` (agent replicated), and the
+    normalizer update with its cross-device merge, equal the one-device computations."""
     out = run_2dev("""
     from daddpg_jax.algo import losses as agent_lib
     from daddpg_jax.algo import normalizer as norm
     from daddpg_jax.algo import sharding as shd
-    from daddpg_jax.algo.config import TrainConfig
+    from daddpg_jax.algo import variants
     from jax.sharding import PartitionSpec as P
     OBS, B = 25, 64
+    mesh = shd.make_mesh(2)
     res = {}
     for algo in ("daddpg", "single"):
-        cfg = TrainConfig(algo=algo, hidden=(32, 32))
+        cfg = TINY.replace(algo=algo)
         learner = agent_lib.make_learner(cfg, (-1.05, 0.0))
         st = agent_lib.init_agent_state(jax.random.PRNGKey(0), learner, cfg.hidden, OBS)
-        n_ag = cfg.num_agents
-        ks = jax.random.split(jax.random.PRNGKey(1), 5)
-        batch = dict(o=jax.random.normal(ks[0], (B, 2, OBS)), o2=jax.random.normal(ks[1], (B, 2, OBS)),
-                     g=jax.random.normal(ks[2], (B, 2, 3)),
-                     a=jax.random.uniform(ks[3], (B, 8), minval=-1, maxval=1),
-                     r=-jax.random.bernoulli(ks[4], 0.5, (n_ag, B)).astype(jnp.float32))
-        mesh = shd.make_mesh(2)
-        ref_st, ref_m = jax.jit(agent_lib.update, static_argnums=2)(st, batch, learner)
-        sh_st, sh_m = shd.sharded_update(mesh, learner)(st, batch)
+        batch = random_batch(jax.random.PRNGKey(1), variants.get(algo).num_agents, B)
+        # the batch split over the devices on its batch axis (r [A, B]: axis 1)
+        specs = {k: (P(None, shd.AXIS) if k == "r" else P(shd.AXIS)) for k in batch}
+        local = lambda agent, b: agent_lib.update(agent, b, learner, axis_name=shd.AXIS)
+        upd = jax.jit(shd.shard_map(local, mesh, in_specs=(P(), specs), out_specs=(P(), P())))
+        ref = jax.jit(agent_lib.update, static_argnums=2)
+        ref_st, ref_m = ref(st, batch, learner)
+        sh_st, sh_m = upd(st, batch)
         # two more steps so that Adam's moments matter
-        upd = shd.sharded_update(mesh, learner)
         ref2, sh2 = ref_st, sh_st
         for _ in range(2):
-            ref2, _ = jax.jit(agent_lib.update, static_argnums=2)(ref2, batch, learner)
+            ref2, _ = ref(ref2, batch, learner)
             sh2, _ = upd(sh2, batch)
         diff = lambda a, b: max(float(np.max(np.abs(np.asarray(x) - np.asarray(y))))
                                 for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
-        res[algo] = dict(state=diff(ref_st, sh_st), metrics=diff(ref_m, sh_m), state3=diff(ref2, sh2),
-                         moved=diff(st.critic, ref_st.critic),
-                         replicated=all(x.sharding.is_fully_replicated for x in jax.tree.leaves(sh_st)))
+        res[algo] = dict(state=diff(ref_st, sh_st), metrics=diff(ref_m, sh_m),
+                         state3=diff(ref2, sh2), moved=diff(st.critic, ref_st.critic),
+                         replicated=all(x.sharding.is_fully_replicated
+                                        for x in jax.tree.leaves(sh_st)))
     # normalizer: per-device moments merged across devices == moments of the whole batch
     x = jax.random.normal(jax.random.PRNGKey(3), (40, 2, 25)) * 3 + 1
     s0 = norm.update(norm.init((2, 25)), x[:8] * 0.5)
     ref = norm.update(s0, x)
-    f = shd.shard_map(lambda s, xl: norm.update(s, xl, axis_name=shd.AXIS), shd.make_mesh(2),
+    f = shd.shard_map(lambda s, xl: norm.update(s, xl, axis_name=shd.AXIS), mesh,
                       in_specs=(P(), P(shd.AXIS)), out_specs=P())
     got = jax.jit(f)(s0, x)
-    res["norm"] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)) / (1 + np.abs(np.asarray(a)))))
+    res["norm"] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))
+                                   / (1 + np.abs(np.asarray(a)))))
                       for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got)))
     print(json.dumps(res))
     """)
@@ -91,18 +93,15 @@ def test_sharded_update_equals_unsharded_update():
 def test_two_device_toy_training_learns_and_resumes(tmp_path):
     out = run_2dev(f"""
     from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.algo.config import TrainConfig
     from daddpg_jax.algo.train import make_train_fns
     from tests import toy_env
-    T = 10
-    env = toy_env.make(episode_length=T, threshold=0.03, goal_range=0.1)
+    env = toy_env.make(**LEARN_ENV)
     res = {{}}
     try:
-        make_train_fns(env, TrainConfig(num_envs=3, batch_size=32))
+        make_train_fns(env, TINY.replace(num_envs=3))
     except ValueError as e:
         res["error"] = str(e)
-    cfg = TrainConfig(hidden=(64, 64), num_envs=4, n_cycles=10, n_batches=20, batch_size=128,
-                      buffer_size=200_000, n_test_episodes=100, seed=0)
+    cfg = LEARN
     seen = []
     f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
     s = f.init()
@@ -120,13 +119,17 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
             ckpt.save(run, s, step=2, save_buffer=True)
             s2_copy = jax.tree.map(jnp.copy, s)
     jax.effects_barrier()
-    res.update(rates=rates, finite=finite, seen=len(seen), buffer_episodes=int(m["buffer_episodes"][-1]),
+    res.update(rates=rates, finite=finite, seen=len(seen),
+               buffer_episodes=int(m["buffer_episodes"][-1]),
                norm_count=float(s.obs_norm.count), updates=int(s.updates))
+    # the pmean-ed updates keep every replicated value identical on both devices
+    per_dev = [[np.asarray(x.addressable_shards[i].data) for x in jax.tree.leaves(s.agent)]
+               for i in range(2)]
+    res["agent_same_on_devices"] = tree_equal(per_dev[0], per_dev[1])
     # resume from the sharded checkpoint: same shardings, no recompile, same next epoch
     restored, step = ckpt.restore(run, f.init(jax.random.PRNGKey(9)))
     res["restored_sharding"] = str(restored.buffer.data.obs.sharding.spec)
-    res["restored_equal"] = all(np.array_equal(np.asarray(a), np.asarray(b))
-                                for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(s2_copy)))
+    res["restored_equal"] = tree_equal(restored, s2_copy)
     a1, m1 = f.train_epoch(restored)
     a2, m2 = f.train_epoch(s2_copy)
     res["resume_equal"] = all(np.array_equal(np.asarray(m1[k]), np.asarray(m2[k])) for k in m1)
@@ -143,6 +146,7 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
     # learns like the single-device run (tests/test_train.py::test_learns_toy_reach; measured
     # 2 devices: 0.0 ... 0.60, 0.97 after epochs 5, 6; 1 device: 0.77, 1.0)
     assert max(rates[-2:]) >= rates[0] + 0.5, rates
+    assert out["agent_same_on_devices"]
     assert "dev" in out["restored_sharding"] and out["restored_equal"] and out["resume_equal"]
     assert out["cache"] == 1
 
@@ -150,7 +154,6 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
 def test_two_device_reach_c_engine_callback_per_shard():
     out = run_2dev("""
     import mjx_envs
-    from daddpg_jax.algo.config import TrainConfig
     from daddpg_jax.algo.train import make_train_fns
     env = mjx_envs.make("reach", physics="c", episode_length=10)
     sizes = []
@@ -159,16 +162,17 @@ def test_two_device_reach_c_engine_callback_per_shard():
         sizes.append(int(np.size(time)))
         return host_step(time, *a)
     env.backend._host_step = spy
-    cfg = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=1, n_batches=2, batch_size=32,
-                      buffer_size=400, n_test_episodes=4, physics="c")
+    cfg = TINY.replace(n_cycles=1, n_batches=2, buffer_size=400, n_test_episodes=4,
+                       physics="c")
     f = make_train_fns(env, cfg)
     s, m = f.train_epoch(f.init())
     jax.block_until_ready(s)
     ev = f.evaluate(s)
+    finite = bool(all(np.all(np.isfinite(np.asarray(v))) for v in jax.tree.leaves(m)))
     print(json.dumps(dict(n_dev=f.num_devices, sizes=sorted(set(sizes)), calls=len(sizes),
-                          finite=bool(all(np.all(np.isfinite(np.asarray(v))) for v in jax.tree.leaves(m))),
-                          nonfinite=bool(np.any(m["nonfinite"])), frozen=env.backend.frozen_count,
-                          buffer=int(m["buffer_episodes"][-1]), success=float(ev["success"]))))
+                          finite=finite, nonfinite=bool(np.any(m["nonfinite"])),
+                          frozen=env.backend.frozen_count, buffer=int(m["buffer_episodes"][-1]),
+                          success=float(ev["success"]))))
     """)
     assert out["n_dev"] == 2
     # training steps call the C engine once per device with its 2 envs (evaluation: 4 envs)
@@ -187,7 +191,8 @@ def test_accelerator_preset_keeps_ratio_and_epoch_size():
     for task, steps in (("reach", 4e5), ("push", 1e6), ("pickup", 1e6), ("pot", 1e6)):
         for n in (256, 1024, 4096, 16384):
             q = preset(task, n, device="gpu")
-            assert REPLAY_RATIO <= replay_ratio(q["n_batches"], q["batch_size"], n) < REPLAY_RATIO * 1.1
+            ratio = replay_ratio(q["n_batches"], q["batch_size"], n)
+            assert REPLAY_RATIO <= ratio < REPLAY_RATIO * 1.1
             epoch = q["n_cycles"] * n * 50
             assert q["n_cycles"] == 1 or 0.5 * steps <= epoch <= 1.5 * steps, (task, n, q)
             TrainConfig(**q)

@@ -5,8 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax.algo import replay
+from daddpg_jax.algo import acting, replay
 from tests import toy_env
+from tests.conftest import tree_equal
 
 T, OBS = 6, 5
 
@@ -19,7 +20,8 @@ def make_episodes(n, first_id=0, info_keys=("arm_contact_penalty",), seed=0):
     ag = np.zeros((n, T + 1, 2, 3), np.float32)
     ag[..., 0] = ids[:, None, None]
     ag[..., 1] = t1[None, :, None]
-    ag[..., 2] = np.array([0.0, 1.0], np.float32)[None, None, :] + rng.uniform(0, 0.5, (n, T + 1, 2))
+    ag[..., 2] = (np.array([0.0, 1.0], np.float32)[None, None, :]
+                  + rng.uniform(0, 0.5, (n, T + 1, 2)))
     obs = np.zeros((n, T + 1, 2, OBS), np.float32)
     obs[..., 0] = ids[:, None, None] + 1.0
     obs[..., 1] = t1[None, :, None]
@@ -29,7 +31,8 @@ def make_episodes(n, first_id=0, info_keys=("arm_contact_penalty",), seed=0):
     actions[..., 1] = np.arange(T, dtype=np.float32)
     info = {k: -0.05 * rng.integers(0, 2, (n, T, 2)).astype(np.float32) for k in info_keys}
     return replay.Episodes(obs=jnp.asarray(obs), ag=jnp.asarray(ag), g=jnp.asarray(g),
-                           actions=jnp.asarray(actions), info={k: jnp.asarray(v) for k, v in info.items()})
+                           actions=jnp.asarray(actions),
+                           info={k: jnp.asarray(v) for k, v in info.items()})
 
 
 def empty(cap):
@@ -57,7 +60,8 @@ def test_insert_and_wraparound():
     # slots 3, 4 then 0 (wraps): the oldest episode is overwritten
     assert int(buf.size) == 5 and int(buf.insert_idx) == 1
     np.testing.assert_array_equal(buf.data.obs[np.array([3, 4, 0])], ep_b.obs)
-    np.testing.assert_array_equal(buf.data.info["arm_contact_penalty"][np.array([3, 4, 0])], ep_b.info["arm_contact_penalty"])
+    np.testing.assert_array_equal(buf.data.info["arm_contact_penalty"][np.array([3, 4, 0])],
+                                  ep_b.info["arm_contact_penalty"])
     np.testing.assert_array_equal(buf.data.ag[1:3], ep_a.ag[1:3])
     buf = replay.insert(buf, make_episodes(5, first_id=6, seed=2))
     assert int(buf.size) == 5 and int(buf.insert_idx) == 1
@@ -71,13 +75,13 @@ def test_insert_under_jit_matches_eager():
     eps = make_episodes(3, first_id=3, seed=1)
     eager = replay.insert(buf, eps)
     jitted = jax.jit(replay.insert)(buf, eps)
-    for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
-        np.testing.assert_array_equal(a, b)
+    assert tree_equal(eager, jitted)
 
 
 def test_never_samples_unwritten_slots():
     buf = replay.insert(empty(50), make_episodes(3))
-    out = jax.jit(lambda k: replay.sample(k, buf, 4096, "future", 0.8, ENV.compute_reward))(jax.random.PRNGKey(0))
+    out = jax.jit(lambda k: replay.sample(k, buf, 4096, "future", 0.8, ENV.compute_reward))(
+        jax.random.PRNGKey(0))
     ep = np.asarray(out["ep"])
     assert ep.min() >= 0 and ep.max() <= 2
     assert set(np.unique(ep)) == {0, 1, 2}
@@ -96,7 +100,8 @@ def test_her_against_python_reference(mode):
     eps = make_episodes(4)
     buf = replay.insert(empty(4), eps)
     n = 20000
-    out = jax.jit(lambda k: replay.sample(k, buf, n, mode, 0.8, ENV.compute_reward))(jax.random.PRNGKey(1))
+    out = jax.jit(lambda k: replay.sample(k, buf, n, mode, 0.8, ENV.compute_reward))(
+        jax.random.PRNGKey(1))
     out = jax.tree.map(np.asarray, out)
     ag, g_stored = np.asarray(eps.ag), np.asarray(eps.g)
     info = np.asarray(eps.info["arm_contact_penalty"])
@@ -146,21 +151,16 @@ def test_rewards_include_info_terms_and_match_env():
     """With her='none', recomputed rewards equal the rewards the env returned while stepping."""
     env = toy_env.make(episode_length=T, clearance=0.5, contact_penalty=0.3)
     n = 8
-    keys = jax.random.split(jax.random.PRNGKey(3), n)
-    s0 = jax.vmap(env.reset)(keys)
 
-    def step(s, k):
-        a = jax.random.uniform(k, (n, 8), minval=-1, maxval=1)
-        s2 = jax.vmap(env.step)(s, a)
-        return s2, (s2.obs["achieved_goal"], s.obs["desired_goal"], a, s2.info["arm_contact_penalty"], s2.reward)
+    def random_actions(s, keys):
+        return jax.random.uniform(keys[0], (n, 8), minval=-1, maxval=1)
 
-    _, (ag, g, a, pen, rew) = jax.lax.scan(step, s0, jax.random.split(jax.random.PRNGKey(4), T))
-    sw = lambda x: jnp.swapaxes(x, 0, 1)
-    eps = replay.Episodes(obs=jnp.zeros((n, T + 1, 2, 25)),
-                          ag=jnp.concatenate([s0.obs["achieved_goal"][:, None], sw(ag)], 1),
-                          g=sw(g), actions=sw(a), info={"arm_contact_penalty": sw(pen)})
+    eps, tr = jax.jit(lambda k: acting.play_episodes(env, random_actions, k, n))(
+        jax.random.PRNGKey(3))
     ep = jnp.repeat(jnp.arange(n), T)
     t = jnp.tile(jnp.arange(T), n)
-    out = replay.her_transitions(jax.random.PRNGKey(0), eps, ep, t, "none", 0.8, env.compute_reward)
-    np.testing.assert_allclose(out["r"], sw(rew).reshape(n * T, 2), atol=1e-6)
-    assert np.any(np.asarray(pen) < 0)  # the info term actually contributed
+    out = replay.her_transitions(jax.random.PRNGKey(0), eps, ep, t, "none", 0.8,
+                                 env.compute_reward)
+    np.testing.assert_allclose(out["r"], jnp.swapaxes(tr["reward"], 0, 1).reshape(n * T, 2),
+                               atol=1e-6)
+    assert np.any(np.asarray(eps.info["arm_contact_penalty"]) < 0)  # the info term contributed

@@ -6,18 +6,16 @@ import os
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, train
-from tests import toy_env
+from tests import conftest, toy_env
+from tests.conftest import T
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-T = 10
-TINY = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=2, n_batches=3, batch_size=32,
-                   buffer_size=20 * T * 4, n_test_episodes=8, seed=3, save_buffer=True)
+TINY = conftest.TINY.replace(n_cycles=2, n_batches=3, n_test_episodes=8, seed=3,
+                             save_buffer=True)
 
 
 @pytest.fixture(scope="module")
@@ -80,9 +78,11 @@ def test_resume_without_checkpoint_fails_clearly(env, tmp_path):
 def test_nonfinite_loss_stops_and_keeps_last_good_checkpoint(env, tmp_path):
     run = str(tmp_path / "nan")
     train(TINY.replace(n_epochs=1, save_buffer=False), run, env=env)
+    # the config rejects NaN settings: NaN rewards (an env whose penalty is NaN) make the
+    # critic loss non-finite instead
+    nan_env = toy_env.make(episode_length=T, contact_penalty=float("nan"))
     with pytest.raises(NonFiniteLoss, match="last good checkpoint"):
-        train(TINY.replace(n_epochs=2, save_buffer=False, lr_critic=float("nan")), run,
-              env=env, resume=True)
+        train(TINY.replace(n_epochs=2, save_buffer=False), run, env=nan_env, resume=True)
     assert ckpt.all_steps(run) == [1]
     assert [int(r["epoch"]) for r in _rows(run)] == [1]
 
@@ -110,7 +110,8 @@ def test_cli_rejects_unknown_fields(tmp_path):
 
 
 def test_cli_rejects_demos_without_a_scripted_controller(tmp_path):
-    run = [sys.executable, os.path.join(ROOT, "experiments", "run.py"), "--out", str(tmp_path / "x")]
+    run = [sys.executable, os.path.join(ROOT, "experiments", "run.py"),
+           "--out", str(tmp_path / "x")]
     out = subprocess.run(run + ["--task", "reach", "--demos", "10"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 2 and "has no scripted controller" in out.stderr

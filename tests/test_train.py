@@ -5,20 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.algo import replay
-from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.algo import replay, variants
 from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.running import checkpoint as ckpt
 from tests import toy_env
-
-T = 10
-TINY = TrainConfig(hidden=(32, 32), num_envs=4, n_cycles=3, n_batches=4, batch_size=32,
-                   buffer_size=20 * T * 4, n_test_episodes=16, seed=0)
-
-
-def tree_equal(a, b):
-    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
-    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+from tests.conftest import LEARN, LEARN_ENV, TINY, T, tree_equal
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +68,8 @@ def test_evaluate_is_deterministic_and_shaped(fns, two_epochs):
     assert e1["final_distance"].shape == (2,)
     assert 0.0 <= float(e1["success"]) <= 1.0 and 0.0 <= float(e1["arm_contact"]) <= 1.0
     # success is measured on n_test_episodes episodes (resolution 1/n)
-    assert float(e1["success"]) * TINY.n_test_episodes == pytest.approx(round(float(e1["success"]) * TINY.n_test_episodes))
+    n_success = float(e1["success"]) * TINY.n_test_episodes
+    assert n_success == pytest.approx(round(n_success))
 
 
 def test_rollout_episode_layout(fns, two_epochs, env):
@@ -91,8 +83,10 @@ def test_rollout_episode_layout(fns, two_epochs, env):
     np.testing.assert_array_equal(eps.obs[:, 0], s0.obs["observation"])
     ep = jnp.repeat(jnp.arange(3), T)
     t = jnp.tile(jnp.arange(T), 3)
-    out = replay.her_transitions(jax.random.PRNGKey(0), eps, ep, t, "none", 0.0, env.compute_reward)
-    np.testing.assert_allclose(out["r"], jnp.swapaxes(tr["reward"], 0, 1).reshape(3 * T, 2), atol=1e-6)
+    out = replay.her_transitions(jax.random.PRNGKey(0), eps, ep, t, "none", 0.0,
+                                 env.compute_reward)
+    np.testing.assert_allclose(out["r"], jnp.swapaxes(tr["reward"], 0, 1).reshape(3 * T, 2),
+                               atol=1e-6)
     # deterministic actions equal `act`
     a = fns.act(s1, eps.obs[:, 0], eps.g[:, 0])
     np.testing.assert_allclose(a, eps.actions[:, 0], atol=1e-6)
@@ -144,7 +138,8 @@ def test_progress_callback_once_per_cycle(env):
 
 def test_nonfinite_flag(fns):
     s = fns.init()
-    bad = s.replace(agent=s.agent.replace(critic=jax.tree.map(lambda x: x * jnp.nan, s.agent.critic)))
+    nan_critic = jax.tree.map(lambda x: x * jnp.nan, s.agent.critic)
+    bad = s.replace(agent=s.agent.replace(critic=nan_critic))
     _, m = fns.train_epoch(bad)
     assert np.all(m["nonfinite"])
 
@@ -155,16 +150,14 @@ def test_variants_run(env, algo):
     f = make_train_fns(env, cfg)
     s, m = f.train_epoch(f.init())
     assert not np.any(m["nonfinite"])
-    n_agents = 1 if algo == "single" else 2
+    n_agents = variants.get(algo).num_agents
+    assert n_agents == (1 if algo == "single" else 2)
     assert m["critic_loss"].shape == (1, n_agents)
     assert f.act(s, jnp.zeros((5, 2, env.obs_size)), jnp.zeros((5, 2, 3))).shape == (5, 8)
 
 
 def test_learns_toy_reach():
-    env = toy_env.make(episode_length=T, threshold=0.03, goal_range=0.1)
-    cfg = TrainConfig(hidden=(64, 64), num_envs=4, n_cycles=10, n_batches=20, batch_size=128,
-                      buffer_size=200_000, n_test_episodes=100, seed=0)
-    f = make_train_fns(env, cfg)
+    f = make_train_fns(toy_env.make(**LEARN_ENV), LEARN)
     s = f.init()
     before = float(f.evaluate(s)["success"])
     rates = []

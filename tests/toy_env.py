@@ -71,7 +71,8 @@ class ToyReach:
 
     def reset(self, key) -> State:
         c = self.config
-        goal = self._start + jax.random.uniform(key, (2, 3), jnp.float32, -c.goal_range, c.goal_range)
+        goal = self._start + jax.random.uniform(key, (2, 3), jnp.float32, -c.goal_range,
+                                                c.goal_range)
         goal = jnp.clip(goal, self._lo, self._hi)
         pos = self._start
         return self._make_state(pos, jnp.zeros_like(pos), goal, jnp.int32(0))
@@ -81,12 +82,16 @@ class ToyReach:
         a = jnp.clip(action.astype(jnp.float32), -1.0, 1.0).reshape(2, 4)
         pos0 = state.data["pos"]
         pos = jnp.clip(pos0 + c.max_delta * a[:, :3], self._lo, self._hi)
-        return self._make_state(pos, (pos - pos0) / c.dt, state.data["goal"], state.info["step"] + 1)
+        return self._make_state(pos, (pos - pos0) / c.dt, state.data["goal"],
+                                state.info["step"] + 1)
 
     # --- helpers ------------------------------------------------------------------------
     def _make_state(self, pos, vel, goal, step) -> State:
         c = self.config
-        z = lambda n: jnp.zeros((2, n), jnp.float32)
+
+        def z(n):
+            return jnp.zeros((2, n), jnp.float32)
+
         obs = jnp.concatenate([pos, z(3), z(3), z(2), z(3), z(3), z(3), vel, z(2)], -1)
         gap = jnp.linalg.norm(pos[0] - pos[1])
         contact = (gap < c.clearance).astype(jnp.float32)

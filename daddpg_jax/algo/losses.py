@@ -25,6 +25,7 @@ import optax
 from flax import struct
 
 from daddpg_jax.algo import networks as nets
+from daddpg_jax.algo.variants import NUM_ARMS, SUM, Variant
 
 
 @struct.dataclass
@@ -38,14 +39,13 @@ class AgentState:
 
 
 class Learner(NamedTuple):
-    """Static pieces of the learner (modules, optimizers, constants)."""
-    algo: str
+    """Static pieces of the learner (variant, modules, optimizers, constants)."""
+    variant: Variant
     actor: nets.MLP
     critic: nets.MLP
     actor_tx: optax.GradientTransformation
     critic_tx: optax.GradientTransformation
     gamma: float
-    polyak: float
     action_l2: float
     target_lo: float
     target_hi: float
@@ -55,24 +55,27 @@ class Learner(NamedTuple):
     q_filter: bool = True
 
 
-def target_bounds(algo: str, reward_range, gamma: float):
-    """[r_min/(1-gamma), r_max/(1-gamma)] per agent; 'single' sums the two arms' bounds."""
+def target_bounds(variant: nets.VariantLike, reward_range, gamma: float):
+    """[r_min/(1-gamma), r_max/(1-gamma)] per agent, r = the agent's reward: one arm's
+    ('per_arm'), or the sum over the arms ('sum': the arms' bounds summed)."""
     r_min, r_max = float(reward_range[0]), float(reward_range[1])
-    if algo == "single":
-        r_min, r_max = 2 * r_min, 2 * r_max
+    if nets.as_variant(variant).reward == SUM:
+        r_min, r_max = NUM_ARMS * r_min, NUM_ARMS * r_max
     return r_min / (1.0 - gamma), r_max / (1.0 - gamma)
 
 
 def make_learner(cfg, reward_range) -> Learner:
-    actor, critic = nets.make_networks(cfg.algo, cfg.hidden)
-    lo, hi = target_bounds(cfg.algo, reward_range, cfg.gamma)
-    return Learner(cfg.algo, actor, critic, optax.adam(cfg.lr_actor), optax.adam(cfg.lr_critic),
-                   cfg.gamma, cfg.polyak, cfg.action_l2, lo, hi, cfg.clip_target, cfg.other_action,
+    variant = nets.as_variant(cfg.algo)
+    actor, critic = nets.make_networks(variant, cfg.hidden)
+    lo, hi = target_bounds(variant, reward_range, cfg.gamma)
+    return Learner(variant, actor, critic, optax.adam(cfg.lr_actor), optax.adam(cfg.lr_critic),
+                   cfg.gamma, cfg.action_l2, lo, hi, cfg.clip_target, cfg.other_action,
                    float(cfg.bc_weight) if cfg.n_demos > 0 else 0.0, bool(cfg.q_filter))
 
 
-def init_agent_state(key, learner: Learner, hidden, obs_size: int, goal_size: int = 3) -> AgentState:
-    actor_p, critic_p = nets.init_params(key, learner.algo, hidden, obs_size, goal_size)
+def init_agent_state(key, learner: Learner, hidden, obs_size: int,
+                     goal_size: int = 3) -> AgentState:
+    actor_p, critic_p = nets.init_params(key, learner.variant, hidden, obs_size, goal_size)
     return AgentState(actor=actor_p, critic=critic_p,
                       target_actor=jax.tree.map(jnp.copy, actor_p),
                       target_critic=jax.tree.map(jnp.copy, critic_p),
@@ -80,9 +83,9 @@ def init_agent_state(key, learner: Learner, hidden, obs_size: int, goal_size: in
                       critic_opt=learner.critic_tx.init(critic_p))
 
 
-def agent_rewards(algo: str, r):
-    """Per-arm rewards [B, 2] -> per-agent rewards [A, B]."""
-    if algo == "single":
+def agent_rewards(variant: nets.VariantLike, r):
+    """Per-arm rewards [B, 2] -> per-agent rewards [A, B] (arm i's, or the sum over arms)."""
+    if nets.as_variant(variant).reward == SUM:
         return jnp.sum(r, -1)[None]
     return jnp.swapaxes(r, 0, 1)
 
@@ -99,13 +102,14 @@ def polyak_update(target, online, polyak: float):
 
 def policy_actions(learner: Learner, actor_params, o, g):
     """Normalized o [B,2,obs], g [B,2,3] -> per-agent actions [A, B, act_dim]."""
-    return nets.apply_stacked(learner.actor, actor_params, nets.actor_inputs(learner.algo, o, g))
+    return nets.apply_stacked(learner.actor, actor_params,
+                              nets.actor_inputs(learner.variant, o, g))
 
 
 def q_values(learner: Learner, critic_params, o, g, a_joint):
     """a_joint [A, B, 8] (each agent's view of the joint action) -> Q [A, B]."""
     return nets.apply_stacked(learner.critic, critic_params,
-                              nets.critic_inputs(learner.algo, o, g, a_joint))
+                              nets.critic_inputs(learner.variant, o, g, a_joint))
 
 
 def _bcast(a, n):
@@ -115,7 +119,7 @@ def _bcast(a, n):
 def critic_loss(critic_params, target_actor, target_critic, batch, learner: Learner):
     """batch: normalized o, o2, g, actions a [B,8], per-agent rewards r [A,B]."""
     n = batch["r"].shape[0]
-    a2 = nets.joint_action(learner.algo, policy_actions(learner, target_actor, batch["o2"], batch["g"]))
+    a2 = nets.joint_action(policy_actions(learner, target_actor, batch["o2"], batch["g"]))
     q2 = q_values(learner, target_critic, batch["o2"], batch["g"], _bcast(a2, n))
     y = jax.lax.stop_gradient(td_target(batch["r"], q2, learner.gamma, learner.target_lo,
                                         learner.target_hi, learner.clip_target))
@@ -129,10 +133,10 @@ def actor_loss(actor_params, critic_params, batch, learner: Learner):
     pi = policy_actions(learner, actor_params, batch["o"], batch["g"])      # [A, B, d]
     n, _, d = pi.shape
     if learner.other_action == "policy":
-        base = jax.lax.stop_gradient(nets.joint_action(learner.algo, pi))
+        base = jax.lax.stop_gradient(nets.joint_action(pi))
     else:
         base = batch["a"]
-    own = nets.own_action_mask(learner.algo)[:, None, :]                    # [A, 1, 8]
+    own = nets.own_action_mask(learner.variant)[:, None, :]                 # [A, 1, 8]
     mixed = jnp.where(own, jnp.tile(pi, (1, 1, own.shape[-1] // d)), _bcast(base, n))
     q = q_values(learner, critic_params, batch["o"], batch["g"], mixed)     # [A, B]
     per_agent = -jnp.mean(q, 1) + learner.action_l2 * jnp.mean(jnp.square(pi), axis=(1, 2))
@@ -144,13 +148,6 @@ def actor_loss(actor_params, critic_params, batch, learner: Learner):
     return jnp.sum(per_agent), aux
 
 
-def own_actions(algo: str, a):
-    """Joint actions [B, 8] -> each agent's own slot [A, B, d] (inverse of joint_action)."""
-    if algo == "single":
-        return a[None]
-    return jnp.swapaxes(a.reshape(a.shape[0], 2, nets.ARM_ACTION), 0, 1)
-
-
 def bc_loss(pi, q_pi, critic_params, batch, learner: Learner):
     """Behaviour cloning on the demo rows of a batch (batch["demo"] [B] bool).
 
@@ -160,7 +157,7 @@ def bc_loss(pi, q_pi, critic_params, batch, learner: Learner):
     over demo rows)."""
     demo = batch["demo"].astype(jnp.float32)                               # [B]
     n = pi.shape[0]
-    err = jnp.sum(jnp.square(pi - own_actions(learner.algo, batch["a"])), -1)   # [A, B]
+    err = jnp.sum(jnp.square(pi - nets.own_actions(learner.variant, batch["a"])), -1)   # [A, B]
     if learner.q_filter:
         q_demo = q_values(learner, critic_params, batch["o"], batch["g"], _bcast(batch["a"], n))
         keep = jax.lax.stop_gradient((q_demo > q_pi).astype(jnp.float32))

@@ -17,7 +17,7 @@ of episodes), so the normalizer update can sample from the newest episodes with 
 
 from __future__ import annotations
 
-from typing import Callable, Dict
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +30,7 @@ class Episodes:
     ag: jax.Array
     g: jax.Array
     actions: jax.Array
-    info: Dict[str, jax.Array]
+    info: dict[str, jax.Array]
 
     @property
     def num_episodes(self) -> int:
@@ -59,7 +59,9 @@ def capacity_episodes(buffer_size: int, horizon: int, num_envs: int) -> int:
 
 def init(capacity: int, horizon: int, obs_size: int, goal_size: int, action_size: int,
          info_keys, num_arms: int = 2) -> ReplayBuffer:
-    z = lambda *s: jnp.zeros(s, jnp.float32)
+    def z(*shape):
+        return jnp.zeros(shape, jnp.float32)
+
     data = Episodes(
         obs=z(capacity, horizon + 1, num_arms, obs_size),
         ag=z(capacity, horizon + 1, num_arms, goal_size),
@@ -67,7 +69,8 @@ def init(capacity: int, horizon: int, obs_size: int, goal_size: int, action_size
         actions=z(capacity, horizon, action_size),
         info={k: z(capacity, horizon, num_arms) for k in info_keys},
     )
-    return ReplayBuffer(data=data, insert_idx=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
+    return ReplayBuffer(data=data, insert_idx=jnp.zeros((), jnp.int32),
+                        size=jnp.zeros((), jnp.int32))
 
 
 def insert(buf: ReplayBuffer, episodes: Episodes) -> ReplayBuffer:

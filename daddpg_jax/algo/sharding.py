@@ -22,11 +22,12 @@ n_dev == 1 uses the single-device code path unchanged (no mesh, no shard_map).
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from collections.abc import Sequence
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 AXIS = "dev"
 """Name of the device axis of the training mesh."""
@@ -42,7 +43,7 @@ def shard_map(f, mesh: Mesh, in_specs, out_specs, check_vma: bool = True):
     return _sm(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_rep=check_vma)
 
 
-def resolve_num_devices(requested: int = 0, devices: Optional[Sequence] = None) -> int:
+def resolve_num_devices(requested: int = 0, devices: Sequence | None = None) -> int:
     """Number of local devices to use: ``requested`` (0 = all local devices)."""
     avail = len(devices) if devices is not None else len(jax.local_devices())
     n = avail if not requested else int(requested)
@@ -51,7 +52,7 @@ def resolve_num_devices(requested: int = 0, devices: Optional[Sequence] = None) 
     return n
 
 
-def make_mesh(n_dev: int, devices: Optional[Sequence] = None) -> Mesh:
+def make_mesh(n_dev: int, devices: Sequence | None = None) -> Mesh:
     devs = list(devices if devices is not None else jax.local_devices())[:n_dev]
     return Mesh(np.asarray(devs), (AXIS,))
 
@@ -86,26 +87,6 @@ def train_state_specs(abstract_state):
 
 def named_shardings(mesh: Mesh, specs):
     return jax.tree.map(lambda s: NamedSharding(mesh, s), specs, is_leaf=_is_spec)
-
-
-def batch_specs(batch: dict) -> dict:
-    """Specs of an update batch (o, o2, g, a: batch axis 0; r [A, B]: batch axis 1)."""
-    return {k: (P(None, AXIS) if k == "r" else P(AXIS)) for k in batch}
-
-
-def sharded_update(mesh: Mesh, learner):
-    """Jitted ``(agent, global_batch) -> (agent, metrics)``: each device takes its slice of the
-    batch, gradients are ``pmean``-ed. Equals ``agent.update`` on the whole batch."""
-    from daddpg_jax.algo import losses as agent_lib
-
-    def local(agent, batch):
-        return agent_lib.update(agent, batch, learner, axis_name=AXIS)
-
-    def f(agent, batch):
-        return shard_map(local, mesh, in_specs=(P(), batch_specs(batch)),
-                         out_specs=(P(), P()))(agent, batch)
-
-    return jax.jit(f)
 
 
 def is_multi_device(tree) -> bool:

@@ -1,9 +1,10 @@
 """Training loop: one jitted `train_epoch` (lax.scan over cycles) and a vectorized `evaluate`.
 
 A cycle (all inside one compiled program):
-  1. reset every env (vmapped `env.reset`, one key per env) and roll out T steps with lax.scan;
-     each arm's action is its actor's output + N(0, noise_eps), clipped to [-1, 1], replaced by a
-     uniform random action with probability random_eps (drawn per env, per arm, per step);
+  1. reset every env (vmapped `env.reset`, one key per env) and roll out T steps with lax.scan
+     (`daddpg_jax.algo.acting`); each arm's action is its actor's output + N(0, noise_eps),
+     clipped to [-1, 1], replaced by a uniform random action with probability random_eps (drawn
+     per env, per arm, per step);
   2. insert the num_envs episodes into the ring buffer;
   3. update the normalizers with every new transition once: observations o_t, and the goals
      after the same HER relabelling the learner will see (as the HER baselines do, but with the
@@ -19,22 +20,31 @@ Python by `TrainFns.env_steps` so they cannot overflow.
 Several local devices (cfg.num_devices, 0 = all): the cycle body runs under `shard_map` over a
 1-d device mesh, data parallel over envs, replay shards and the update batch (see
 daddpg_jax/algo/sharding.py). One device: the code path below without any mesh.
+
+`make_train_fns` assembles the pieces built below: `_setup` (static sizes, checks),
+`_acting_fns` (act, rollout), `_normalizer_update`, `_init_fn`, `_updates_fn` (the n_batches
+gradient updates), `_cycle_fn` (one cycle), `_sharded_cycle` (the multi-device wrapper) and
+`_evaluate_fn`.
 """
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Optional
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
+from daddpg_jax.algo import acting, replay, variants
 from daddpg_jax.algo import losses as agent_lib
 from daddpg_jax.algo import networks as nets
 from daddpg_jax.algo import normalizer as norm
-from daddpg_jax.algo import replay
 from daddpg_jax.algo import sharding as shd
 from daddpg_jax.algo.config import TrainConfig
+
+DEMO_STREAM = 0x64656D6F
+"""fold_in constant of the PRNG stream that plays the demonstrations at init."""
 
 
 @struct.dataclass
@@ -54,20 +64,37 @@ class TrainFns(NamedTuple):
     train_epoch: Callable     # train_epoch(state) -> (state, metrics of per-cycle arrays)
     evaluate: Callable        # evaluate(state, key=None) -> metrics dict
     act: Callable             # act(state, obs [...,2,obs], desired_goal [...,2,3]) -> [..., 8]
-    rollout: Callable         # rollout(state, key, n_envs, explore) -> (Episodes, per-step dict [T, N, ...])
+    rollout: Callable         # rollout(state, key, n_envs, explore)
+    #                           -> (Episodes, per-step dict [T, N, ...])
     env_steps: Callable       # env_steps(state) -> int
     learner: agent_lib.Learner
     config: TrainConfig
     capacity: int             # buffer capacity in episodes (all devices together)
     horizon: int
     num_devices: int = 1      # devices the cycle is spread over
-    mesh: Optional[object] = None   # jax.sharding.Mesh when num_devices > 1
-    state_shardings: Optional[object] = None   # TrainState of NamedShardings when num_devices > 1
+    mesh: Any = None          # jax.sharding.Mesh when num_devices > 1
+    state_shardings: Any = None   # TrainState of NamedShardings when num_devices > 1
 
 
-def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
-                   update_progress: Optional[Callable] = None, update_tick: int = 0,
-                   demo_policy: Optional[Callable] = None) -> TrainFns:
+class _Setup(NamedTuple):
+    """Static pieces shared by the builders below."""
+    env: Any
+    cfg: TrainConfig
+    learner: agent_lib.Learner
+    horizon: int
+    info_keys: tuple
+    capacity: int             # episodes, all devices together
+    n_dev: int
+    mesh: Any                 # None on one device
+    n_envs_local: int         # envs per device
+    batch_local: int          # replay rows of an update batch per device
+    demo_local: int           # demo rows of an update batch per device
+    demo_policy: Callable | None
+
+
+def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
+                   update_progress: Callable | None = None, update_tick: int = 0,
+                   demo_policy: Callable | None = None) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
@@ -79,13 +106,49 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
     function of the env's observation dict -> joint action [..., 8]; default: the task's
     scripted controller (mjx_envs.tasks.scripted) at the env's max_delta.
     """
+    sp = _setup(env, cfg, demo_policy)
+    act, rollout = _acting_fns(sp)
+    update_normalizers = _normalizer_update(sp)
+    init = _init_fn(sp, update_normalizers)
+    cycle = _cycle_fn(sp, rollout, update_normalizers,
+                      _updates_fn(sp, update_progress, update_tick))
+    state_shardings = None
+    if sp.mesh is not None:
+        cycle, state_shardings = _sharded_cycle(sp, cycle, init)
+
+    def train_cycle(state: TrainState, _):
+        state, metrics = cycle(state)
+        if progress is not None:
+            jax.debug.callback(progress, metrics, ordered=False)
+        return state, metrics
+
+    def train_epoch(state: TrainState):
+        return jax.lax.scan(train_cycle, state, None, length=cfg.n_cycles)
+
+    if sp.mesh is None:
+        epoch_jit = jax.jit(train_epoch, donate_argnums=0)
+    else:
+        rep_sh = jax.sharding.NamedSharding(sp.mesh, jax.sharding.PartitionSpec())
+        epoch_jit = jax.jit(train_epoch, donate_argnums=0, in_shardings=(state_shardings,),
+                            out_shardings=(state_shardings, rep_sh))
+
+    def env_steps(state: TrainState) -> int:
+        return int(state.cycles) * cfg.num_envs * sp.horizon
+
+    return TrainFns(init=_init_wrapper(init, cfg, state_shardings), train_epoch=epoch_jit,
+                    evaluate=_evaluate_fn(sp, rollout), act=jax.jit(act),
+                    rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
+                    learner=sp.learner, config=cfg, capacity=sp.capacity, horizon=sp.horizon,
+                    num_devices=sp.n_dev, mesh=sp.mesh, state_shardings=state_shardings)
+
+
+def _setup(env, cfg: TrainConfig, demo_policy: Callable | None) -> _Setup:
+    """Checks env and cfg; sizes of the buffer, the devices and the per-device batches."""
     T = int(env.episode_length)
-    n_arms = int(env.num_arms)
-    if n_arms != 2 or env.action_size != 2 * nets.ARM_ACTION:
+    if (int(env.num_arms) != variants.NUM_ARMS
+            or env.action_size != variants.NUM_ARMS * variants.ARM_ACTION):
         raise ValueError("the trainer expects 2 arms with 4-d actions each")
     learner = agent_lib.make_learner(cfg, env.reward_range)
-    algo, n_agents = cfg.algo, cfg.num_agents
-    info_keys = tuple(env.info_keys)
     capacity = replay.capacity_episodes(cfg.buffer_size, T, cfg.num_envs)
     n_dev = shd.resolve_num_devices(cfg.num_devices)
     mesh = None
@@ -93,21 +156,64 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         shd.check_divisible(cfg.num_envs, cfg.batch_size, n_dev)
         capacity = shd.sharded_capacity(capacity, n_dev)
         mesh = shd.make_mesh(n_dev)
-    n_envs_local, batch_local = cfg.num_envs // n_dev, cfg.batch_size // n_dev
-    future_p = cfg.future_p
-    n_demos = int(cfg.n_demos)
-    if n_demos > 0:
+    if cfg.n_demos > 0:
         if demo_policy is None:
             from mjx_envs.tasks import scripted
 
             ctrl, max_delta = scripted.get_policy(cfg.task), float(env.config.max_delta)
-            demo_policy = lambda obs: ctrl(obs, max_delta)   # noqa: E731
+
+            def demo_policy(obs):
+                return ctrl(obs, max_delta)
         if cfg.demo_batch % n_dev:
             raise ValueError(f"demo_batch ({cfg.demo_batch}) must be a multiple of the number of "
                              f"devices ({n_dev})")
-    demo_local = cfg.demo_batch // n_dev
-    demo_rows = jnp.arange(batch_local + demo_local) >= batch_local   # update batch: demo rows last
-    norm_kw = dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
+    return _Setup(env=env, cfg=cfg, learner=learner, horizon=T, info_keys=tuple(env.info_keys),
+                  capacity=capacity, n_dev=n_dev, mesh=mesh, n_envs_local=cfg.num_envs // n_dev,
+                  batch_local=cfg.batch_size // n_dev, demo_local=cfg.demo_batch // n_dev,
+                  demo_policy=demo_policy)
+
+
+def _norm_kw(cfg: TrainConfig) -> dict:
+    return dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
+
+
+def _normalize_inputs(cfg: TrainConfig, state: TrainState, o, g):
+    kw = _norm_kw(cfg)
+    return norm.normalize(state.obs_norm, o, **kw), norm.normalize(state.goal_norm, g, **kw)
+
+
+def _acting_fns(sp: _Setup):
+    """(act, rollout): the deterministic joint action, and episodes of the actors (exploring
+    or not) played by `acting.play_episodes`."""
+    cfg, learner, env = sp.cfg, sp.learner, sp.env
+
+    def act(state: TrainState, obs, desired_goal):
+        """Deterministic joint action [..., 8] for observations [..., 2, obs], goals [..., 2, 3]."""
+        lead = obs.shape[:-2]
+        o = obs.reshape((-1,) + obs.shape[-2:])
+        g = desired_goal.reshape((-1,) + desired_goal.shape[-2:])
+        o, g = _normalize_inputs(cfg, state, o, g)
+        pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)
+        return nets.joint_action(pi).reshape(lead + (env.action_size,))
+
+    def rollout(state: TrainState, key, n_envs: int, explore: bool):
+        def actors(s, keys):
+            k_noise, k_coin, k_rand = keys
+            o, g = _normalize_inputs(cfg, state, s.obs["observation"], s.obs["desired_goal"])
+            pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)   # [A, N, d]
+            if explore:
+                pi = jnp.clip(pi + cfg.noise_eps * jax.random.normal(k_noise, pi.shape), -1.0, 1.0)
+                coin = jax.random.bernoulli(k_coin, cfg.random_eps, pi.shape[:2] + (1,))
+                rand = jax.random.uniform(k_rand, pi.shape, minval=-1.0, maxval=1.0)
+                pi = jnp.where(coin, rand, pi)
+            return nets.joint_action(pi)
+        return acting.play_episodes(env, actors, key, n_envs, sp.info_keys)
+
+    return act, rollout
+
+
+def _normalizer_update(sp: _Setup):
+    cfg, T = sp.cfg, sp.horizon
 
     def update_normalizers(obs_norm, goal_norm, key, episodes, axis=None):
         """Both normalizers updated with every transition of `episodes` once, goals after the
@@ -115,118 +221,79 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
         n = episodes.num_episodes
         ep = jnp.repeat(jnp.arange(n, dtype=jnp.int32), T)
         t = jnp.tile(jnp.arange(T, dtype=jnp.int32), n)
-        nt = replay.her_transitions(key, episodes, ep, t, cfg.her, future_p, env.compute_reward)
+        nt = replay.her_transitions(key, episodes, ep, t, cfg.her, cfg.future_p,
+                                    sp.env.compute_reward)
         return (norm.update(obs_norm, nt["o"], cfg.clip_obs, axis_name=axis),
                 norm.update(goal_norm, nt["g"], cfg.clip_obs, axis_name=axis))
 
-    def normalize_inputs(state, o, g):
-        return norm.normalize(state.obs_norm, o, **norm_kw), norm.normalize(state.goal_norm, g, **norm_kw)
+    return update_normalizers
 
-    def act(state: TrainState, obs, desired_goal):
-        """Deterministic joint action [..., 8] for observations [..., 2, obs], goals [..., 2, 3]."""
-        lead = obs.shape[:-2]
-        o = obs.reshape((-1,) + obs.shape[-2:])
-        g = desired_goal.reshape((-1,) + desired_goal.shape[-2:])
-        o, g = normalize_inputs(state, o, g)
-        pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)
-        return nets.joint_action(algo, pi).reshape(lead + (env.action_size,))
 
-    def rollout(state: TrainState, key, n_envs: int, explore: bool):
-        def actors(s, keys):
-            k_noise, k_coin, k_rand = keys
-            o, g = normalize_inputs(state, s.obs["observation"], s.obs["desired_goal"])
-            pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)   # [A, N, d]
-            if explore:
-                pi = jnp.clip(pi + cfg.noise_eps * jax.random.normal(k_noise, pi.shape), -1.0, 1.0)
-                coin = jax.random.bernoulli(k_coin, cfg.random_eps, pi.shape[:2] + (1,))
-                pi = jnp.where(coin, jax.random.uniform(k_rand, pi.shape, minval=-1.0, maxval=1.0), pi)
-            return nets.joint_action(algo, pi)
-        return play(actors, key, n_envs)
+def _init_fn(sp: _Setup, update_normalizers):
+    cfg, env, T = sp.cfg, sp.env, sp.horizon
+    n_arms = variants.NUM_ARMS
 
-    def play(policy, key, n_envs: int):
-        """Episodes of `policy(env_state, keys) -> joint action [N, 8]` in n_envs fresh envs
-        (keys: three fresh PRNG keys per step)."""
-        k_reset, k_scan = jax.random.split(key)
-        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n_envs))
-
-        def step(carry, _):
-            s, k = carry
-            k, *keys = jax.random.split(k, 4)
-            a = policy(s, keys)
-            s2 = jax.vmap(env.step)(s, a)
-            out = dict(obs=s2.obs["observation"], ag=s2.obs["achieved_goal"],
-                       g=s.obs["desired_goal"], a=a,
-                       info={k_: s2.info[k_] for k_ in info_keys},
-                       reward=s2.reward, success=s2.metrics["success"],
-                       arm_contact=s2.metrics["arm_contact"])
-            return (s2, k), out
-
-        (_, _), tr = jax.lax.scan(step, (s0, k_scan), None, length=T)
-        bt = lambda x: jnp.swapaxes(x, 0, 1)   # [T, N, ...] -> [N, T, ...]
-        episodes = replay.Episodes(
-            obs=jnp.concatenate([s0.obs["observation"][:, None], bt(tr["obs"])], 1),
-            ag=jnp.concatenate([s0.obs["achieved_goal"][:, None], bt(tr["ag"])], 1),
-            g=bt(tr["g"]), actions=bt(tr["a"]), info=jax.tree.map(bt, tr["info"]))
-        return episodes, tr
-
-    def rollout_metrics(episodes, tr):
-        g_last = episodes.g[:, -1]
-        dist = jnp.linalg.norm(episodes.ag[:, -1] - g_last, axis=-1)               # [N, 2]
-        return dict(success=jnp.mean(tr["success"][-1]),
-                    arm_contact=jnp.mean(jnp.max(tr["arm_contact"], axis=0)),
-                    arm_contact_steps=jnp.mean(tr["arm_contact"]),
-                    final_distance=jnp.mean(dist, 0),
-                    episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
+    def empty_buffer(capacity):
+        return replay.init(capacity, T, env.obs_size, env.goal_size, env.action_size,
+                           sp.info_keys, n_arms)
 
     def init(key=None) -> TrainState:
         if key is None:
             key = jax.random.PRNGKey(cfg.seed)
         k_agent, k_state = jax.random.split(key)
-        a_state = agent_lib.init_agent_state(k_agent, learner, cfg.hidden, env.obs_size, env.goal_size)
-        buf = replay.init(capacity, T, env.obs_size, env.goal_size, env.action_size, info_keys, n_arms)
+        a_state = agent_lib.init_agent_state(k_agent, sp.learner, cfg.hidden, env.obs_size,
+                                             env.goal_size)
+        buf = empty_buffer(sp.capacity)
         obs_norm, goal_norm = norm.init((n_arms, env.obs_size)), norm.init((n_arms, env.goal_size))
-        if n_demos > 0:
+        if cfg.n_demos > 0:
             # its own stream (fold_in), so the agent's and trainer's keys do not depend on n_demos
             k_play, k_norm = jax.random.split(jax.random.fold_in(key, DEMO_STREAM))
-            demos, _ = play(lambda s, k: demo_policy(s.obs).astype(jnp.float32), k_play, n_demos)
+            demos, _ = acting.play_episodes(
+                env, lambda s, k: sp.demo_policy(s.obs).astype(jnp.float32), k_play,
+                int(cfg.n_demos), sp.info_keys)
             obs_norm, goal_norm = update_normalizers(obs_norm, goal_norm, k_norm, demos)
         else:
-            demos = replay.init(0, T, env.obs_size, env.goal_size, env.action_size, info_keys,
-                                n_arms).data
+            demos = empty_buffer(0).data
         return TrainState(agent=a_state, obs_norm=obs_norm, goal_norm=goal_norm,
                           buffer=buf, demos=demos, key=k_state,
                           cycles=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32))
 
-    def cycle_body(state: TrainState, axis=None):
-        """One cycle; axis=None: single device; else the body of a shard_map over `axis` (this
-        device's envs, replay shard and batch slice; buffer index/size are local values)."""
-        key, k_roll, k_norm, k_upd = jax.random.split(state.key, 4)
-        if axis is not None:
-            dev = jax.lax.axis_index(axis)
-            k_roll, k_norm, k_upd = (jax.random.fold_in(k, dev) for k in (k_roll, k_norm, k_upd))
-        episodes, tr = rollout(state, k_roll, n_envs_local, explore=True)
-        buf = replay.insert(state.buffer, episodes)
+    return init
 
-        obs_norm, goal_norm = update_normalizers(state.obs_norm, state.goal_norm, k_norm,
-                                                 episodes, axis)
-        state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
 
+def _update_batch(sp: _Setup, state: TrainState, key, demo_rows):
+    """A normalized update batch: batch_local HER replay rows (+ demo_local demo rows)."""
+    cfg, T = sp.cfg, sp.horizon
+    b = replay.sample(key, state.buffer, sp.batch_local, cfg.her, cfg.future_p,
+                      sp.env.compute_reward)
+    b = {name: b[name] for name in ("o", "o2", "g", "a", "r")}
+    if cfg.n_demos > 0:
+        k_idx, k_her = jax.random.split(jax.random.fold_in(key, DEMO_STREAM))
+        ep, t = replay.sample_indices(k_idx, int(cfg.n_demos), sp.demo_local, T)
+        d = replay.her_transitions(k_her, state.demos, ep, t, cfg.her, cfg.future_p,
+                                   sp.env.compute_reward)
+        b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
+    o, g = _normalize_inputs(cfg, state, b["o"], b["g"])
+    o2 = norm.normalize(state.obs_norm, b["o2"], **_norm_kw(cfg))
+    batch = dict(o=o, o2=o2, g=g, a=b["a"],
+                 r=agent_lib.agent_rewards(sp.learner.variant, b["r"]))
+    if cfg.n_demos > 0:
+        batch["demo"] = demo_rows
+    return batch
+
+
+def _updates_fn(sp: _Setup, update_progress: Callable | None, update_tick: int):
+    """updates(state, key, axis) -> (agent after n_batches updates and the polyak step, mean
+    update metrics). state: the cycle's state after the insert and the normalizer update."""
+    cfg = sp.cfg
+    # update batch: demo rows last
+    demo_rows = jnp.arange(sp.batch_local + sp.demo_local) >= sp.batch_local
+
+    def updates(state: TrainState, key, axis=None):
         def one_update(agent, xs):
             k, i = xs
-            b = replay.sample(k, buf, batch_local, cfg.her, future_p, env.compute_reward)
-            b = {name: b[name] for name in ("o", "o2", "g", "a", "r")}
-            if n_demos > 0:
-                k_idx, k_her = jax.random.split(jax.random.fold_in(k, DEMO_STREAM))
-                ep, t = replay.sample_indices(k_idx, n_demos, demo_local, T)
-                d = replay.her_transitions(k_her, state.demos, ep, t, cfg.her, future_p,
-                                           env.compute_reward)
-                b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
-            o, g = normalize_inputs(state, b["o"], b["g"])
-            o2 = norm.normalize(obs_norm, b["o2"], **norm_kw)
-            batch = dict(o=o, o2=o2, g=g, a=b["a"], r=agent_lib.agent_rewards(algo, b["r"]))
-            if n_demos > 0:
-                batch["demo"] = demo_rows
-            out = agent_lib.update(agent, batch, learner, axis_name=axis)
+            batch = _update_batch(sp, state, k, demo_rows)
+            out = agent_lib.update(agent, batch, sp.learner, axis_name=axis)
             if update_progress is not None and update_tick:
                 tick = (i + 1) % update_tick == 0
                 if axis is not None:
@@ -236,63 +303,88 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
                              lambda: None)
             return out
 
-        a_state, um = jax.lax.scan(
-            one_update, state.agent,
-            (jax.random.split(k_upd, cfg.n_batches), jnp.arange(cfg.n_batches, dtype=jnp.int32)))
+        xs = (jax.random.split(key, cfg.n_batches), jnp.arange(cfg.n_batches, dtype=jnp.int32))
+        a_state, um = jax.lax.scan(one_update, state.agent, xs)
         a_state = agent_lib.update_targets(a_state, cfg.polyak)
-        um = jax.tree.map(lambda x: jnp.mean(x, 0), um)
-        nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"])) & jnp.all(jnp.isfinite(um["actor_loss"])))
+        return a_state, jax.tree.map(lambda x: jnp.mean(x, 0), um)
+
+    return updates
+
+
+def _rollout_metrics(episodes, tr):
+    g_last = episodes.g[:, -1]
+    dist = jnp.linalg.norm(episodes.ag[:, -1] - g_last, axis=-1)               # [N, 2]
+    return dict(success=jnp.mean(tr["success"][-1]),
+                arm_contact=jnp.mean(jnp.max(tr["arm_contact"], axis=0)),
+                arm_contact_steps=jnp.mean(tr["arm_contact"]),
+                final_distance=jnp.mean(dist, 0),
+                episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
+
+
+def _cycle_fn(sp: _Setup, rollout, update_normalizers, updates):
+    cfg = sp.cfg
+
+    def cycle_body(state: TrainState, axis=None):
+        """One cycle; axis=None: single device; else the body of a shard_map over `axis` (this
+        device's envs, replay shard and batch slice; buffer index/size are local values)."""
+        key, k_roll, k_norm, k_upd = jax.random.split(state.key, 4)
+        if axis is not None:
+            dev = jax.lax.axis_index(axis)
+            k_roll, k_norm, k_upd = (jax.random.fold_in(k, dev) for k in (k_roll, k_norm, k_upd))
+        episodes, tr = rollout(state, k_roll, sp.n_envs_local, explore=True)
+        buf = replay.insert(state.buffer, episodes)
+        obs_norm, goal_norm = update_normalizers(state.obs_norm, state.goal_norm, k_norm,
+                                                 episodes, axis)
+        state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
+        a_state, um = updates(state, k_upd, axis)
+        nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"]))
+                      & jnp.all(jnp.isfinite(um["actor_loss"])))
         state = state.replace(agent=a_state, key=key, cycles=state.cycles + 1,
                               updates=state.updates + cfg.n_batches)
-        r_metrics = rollout_metrics(episodes, tr)
+        r_metrics = _rollout_metrics(episodes, tr)
         if axis is not None:
             r_metrics = jax.lax.pmean(r_metrics, axis)
         metrics = dict(r_metrics, **um, nonfinite=nonfinite,
                        cycle=state.cycles, buffer_episodes=buf.size)
         return state, metrics
 
-    def train_cycle(state: TrainState, _):
-        state, metrics = cycle_body(state)
-        if progress is not None:
-            jax.debug.callback(progress, metrics, ordered=False)
+    return cycle_body
+
+
+def _sharded_cycle(sp: _Setup, cycle_body, init):
+    """(cycle over the device mesh, TrainState of NamedShardings): `cycle_body` under
+    shard_map, each device on its envs, its replay shard and its slice of the batch."""
+    n_dev = sp.n_dev
+    state_specs = shd.train_state_specs(jax.eval_shape(init, jax.random.PRNGKey(0)))
+    state_shardings = shd.named_shardings(sp.mesh, state_specs)
+
+    def local_cycle(state: TrainState):
+        # global ring index/size -> this device's (every device inserts n_envs_local)
+        b = state.buffer
+        state = state.replace(buffer=b.replace(insert_idx=b.insert_idx // n_dev,
+                                               size=b.size // n_dev))
+        state, metrics = cycle_body(state, shd.AXIS)
+        b = state.buffer
+        state = state.replace(buffer=b.replace(insert_idx=b.insert_idx * n_dev,
+                                               size=b.size * n_dev))
+        metrics["buffer_episodes"] = state.buffer.size
         return state, metrics
 
-    state_specs = state_shardings = None
-    if mesh is not None:
-        state_specs = shd.train_state_specs(jax.eval_shape(init, jax.random.PRNGKey(0)))
-        state_shardings = shd.named_shardings(mesh, state_specs)
+    # check_vma=False: env code (not written for shard_map) may start a scan carry from
+    # device-invariant values that the varying actions then make device-varying; the
+    # replicated outputs are made identical on every device by pmean/psum above.
+    cycle = shd.shard_map(local_cycle, sp.mesh, in_specs=(state_specs,),
+                          out_specs=(state_specs, jax.sharding.PartitionSpec()),
+                          check_vma=False)
+    return cycle, state_shardings
 
-        def local_cycle(state: TrainState):
-            # global ring index/size -> this device's (every device inserts n_envs_local)
-            b = state.buffer
-            state = state.replace(buffer=b.replace(insert_idx=b.insert_idx // n_dev,
-                                                   size=b.size // n_dev))
-            state, metrics = cycle_body(state, shd.AXIS)
-            b = state.buffer
-            state = state.replace(buffer=b.replace(insert_idx=b.insert_idx * n_dev,
-                                                   size=b.size * n_dev))
-            metrics["buffer_episodes"] = state.buffer.size
-            return state, metrics
 
-        # check_vma=False: env code (not written for shard_map) may start a scan carry from
-        # device-invariant values that the varying actions then make device-varying; the
-        # replicated outputs are made identical on every device by pmean/psum above.
-        sharded_cycle = shd.shard_map(local_cycle, mesh, in_specs=(state_specs,),
-                                      out_specs=(state_specs, jax.sharding.PartitionSpec()),
-                                      check_vma=False)
-
-        def train_cycle(state: TrainState, _):  # noqa: F811 (multi-device variant)
-            state, metrics = sharded_cycle(state)
-            if progress is not None:
-                jax.debug.callback(progress, metrics, ordered=False)
-            return state, metrics
-
-    def train_epoch(state: TrainState):
-        return jax.lax.scan(train_cycle, state, None, length=cfg.n_cycles)
+def _evaluate_fn(sp: _Setup, rollout):
+    cfg = sp.cfg
 
     def evaluate_impl(state: TrainState, key):
         episodes, tr = rollout(state, key, cfg.n_test_episodes, explore=False)
-        return rollout_metrics(episodes, tr)
+        return _rollout_metrics(episodes, tr)
 
     evaluate_jit = jax.jit(evaluate_impl)
 
@@ -302,25 +394,7 @@ def make_train_fns(env, cfg: TrainConfig, progress: Optional[Callable] = None,
             key = jax.random.PRNGKey(cfg.eval_seed)
         return evaluate_jit(state, key)
 
-    def env_steps(state: TrainState) -> int:
-        return int(state.cycles) * cfg.num_envs * T
-
-    if mesh is None:
-        epoch_jit = jax.jit(train_epoch, donate_argnums=0)
-    else:
-        rep_sh = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-        epoch_jit = jax.jit(train_epoch, donate_argnums=0, in_shardings=(state_shardings,),
-                            out_shardings=(state_shardings, rep_sh))
-    return TrainFns(init=_init_wrapper(init, cfg, state_shardings),
-                    train_epoch=epoch_jit,
-                    evaluate=evaluate, act=jax.jit(act),
-                    rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
-                    learner=learner, config=cfg, capacity=capacity, horizon=T,
-                    num_devices=n_dev, mesh=mesh, state_shardings=state_shardings)
-
-
-DEMO_STREAM = 0x64656D6F
-"""fold_in constant of the PRNG stream that plays the demonstrations at init."""
+    return evaluate
 
 
 def _init_wrapper(init_fn, cfg, shardings=None):

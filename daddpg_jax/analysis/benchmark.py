@@ -1,6 +1,7 @@
 """Throughput measurements used by ``experiments/benchmark.py`` (figures in docs/BENCHMARKS.md).
 
-- :func:`env_throughput`: env-only physics and control steps/s (vmapped reset + ``lax.scan``).
+- :func:`env_throughput`: env-only physics and control steps/s (``acting.rollout``: vmapped
+  reset + ``lax.scan``).
 - :func:`train_throughput`: the compiled ``train_epoch`` of ``make_train_fns`` with a task preset:
   env steps/s, updates/s, compile time, time of the rollout part of a cycle, wall and CPU time.
 - :func:`contacts_per_step`: active contacts per physics state over scripted episodes (C engine:
@@ -16,11 +17,12 @@ import os
 import platform
 import resource
 import time
-from typing import Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from daddpg_jax.algo import acting
 
 
 def machine_description() -> str:
@@ -58,23 +60,22 @@ def memory() -> dict:
 
 def env_throughput(env, num_envs: int, n_steps: int | None = None, repeats: int = 3,
                    seed: int = 0) -> dict:
-    """Env-only speed: one jitted program = vmapped reset + ``lax.scan`` over control steps.
+    """Env-only speed: one jitted program = ``acting.rollout`` of random actions (vmapped reset +
+    ``lax.scan`` over control steps).
 
     Returns control steps/s and physics steps/s (= control * n_substeps), summed over envs, and
     the compile time (first call minus a timed call).
     """
     T = int(n_steps or env.episode_length)
 
+    def record(s, a, s2):
+        return s2.metrics["success"].mean(), s2.metrics["physics_ok"].min()
+
     def run(key):
         k_reset, k_act = jax.random.split(key)
-        state = jax.vmap(env.reset)(jax.random.split(k_reset, num_envs))
         actions = jax.random.uniform(k_act, (T, num_envs, env.action_size), jnp.float32, -1, 1)
-
-        def body(s, a):
-            s = jax.vmap(env.step)(s, a)
-            return s, (s.metrics["success"].mean(), s.metrics["physics_ok"].min())
-
-        state, (succ, ok) = jax.lax.scan(body, state, actions)
+        _, (succ, ok) = acting.rollout(env, lambda s, a: a, jax.random.split(k_reset, num_envs),
+                                       xs=actions, record=record)
         return succ.mean(), ok.min()
 
     fn = jax.jit(run)
@@ -146,7 +147,8 @@ def train_throughput(env, cfg, repeats: int = 2, rollout_split: bool = True) -> 
         times = []
         for i in range(max(repeats, 3)):
             t0 = time.perf_counter()
-            jax.block_until_ready(fns.rollout(state, jax.random.fold_in(key, i), cfg.num_envs, True))
+            k = jax.random.fold_in(key, i)
+            jax.block_until_ready(fns.rollout(state, k, cfg.num_envs, True))
             times.append(time.perf_counter() - t0)
         out["rollout_s_per_cycle"] = float(np.median(times))
         out["rollout_share"] = out["rollout_s_per_cycle"] / out["cycle_s"]
@@ -167,6 +169,7 @@ def op_profile(env, cfg, logdir: str, top: int = 12) -> dict:
     import re
 
     from jax._src.lib import _profile_data
+
     from daddpg_jax.algo.train import make_train_fns
 
     fns = make_train_fns(env, cfg)
@@ -203,16 +206,16 @@ def _has_contacts(mj_model) -> bool:
     return bool(np.any((mj_model.geom_contype != 0) | (mj_model.geom_conaffinity != 0)))
 
 
-def contacts_per_step(env, num_envs: int = 8, steps: Optional[int] = None, seed: int = 0,
+def contacts_per_step(env, num_envs: int = 8, steps: int | None = None, seed: int = 0,
                       policy: str = "scripted") -> dict:
     """Active contacts per control step over ``num_envs`` episodes.
 
-    policy: 'scripted' (the task's controller in ``mjx_envs.tasks.scripted``, which grasps/pushes, so
-    contacts happen) or 'random' (uniform actions). C engine: the episode is rolled out with the
-    env, then each (env, step) state is put into a plain ``MjData`` (qpos, qvel, mocap) and
-    ``mj_forward`` gives ``data.ncon`` (contacts within the pair margins). MJX: the count of
-    ``contact.dist < contact.includemargin`` in the ``mjx.Data`` after each step, in the
-    compiled rollout. Scenes without collision pairs report 0 without rolling out.
+    policy: 'scripted' (the task's controller in ``mjx_envs.tasks.scripted``, which grasps and
+    pushes, so contacts happen) or 'random' (uniform actions). C engine: the episode is rolled
+    out with the env, then each (env, step) state is put into a plain ``MjData`` (qpos, qvel,
+    mocap) and ``mj_forward`` gives ``data.ncon`` (contacts within the pair margins). MJX: the
+    count of ``contact.dist < contact.includemargin`` in the ``mjx.Data`` after each step, in
+    the compiled rollout. Scenes without collision pairs report 0 without rolling out.
     """
     import mujoco
 
@@ -236,20 +239,19 @@ def contacts_per_step(env, num_envs: int = 8, steps: Optional[int] = None, seed:
         c = impl.contact
         return jnp.sum(c.dist < c.includemargin).astype(jnp.int32)
 
+    def policy_fn(s, k):
+        if act_fn is None:
+            return jax.random.uniform(k, (num_envs, env.action_size), jnp.float32, -1, 1)
+        return act_fn(s.obs, env.config.max_delta)
+
+    def record(s, a, s2):
+        b = env.backend
+        return b.qpos(s2.data), s2.data.qvel, b.mocap_pos(s2.data), jax.vmap(count)(s2.data)
+
     def run(key):
         k_reset, k_act = jax.random.split(key)
-        s = jax.vmap(env.reset)(jax.random.split(k_reset, num_envs))
-
-        def body(s, k):
-            if act_fn is None:
-                a = jax.random.uniform(k, (num_envs, env.action_size), jnp.float32, -1, 1)
-            else:
-                a = act_fn(s.obs, env.config.max_delta)
-            s = jax.vmap(env.step)(s, a)
-            b = env.backend
-            return s, (b.qpos(s.data), s.data.qvel, b.mocap_pos(s.data), jax.vmap(count)(s.data))
-
-        _, out = jax.lax.scan(body, s, jax.random.split(k_act, T))
+        _, out = acting.rollout(env, policy_fn, jax.random.split(k_reset, num_envs),
+                                xs=jax.random.split(k_act, T), record=record)
         return out
 
     qpos, qvel, mocap, ncon = jax.device_get(jax.jit(run)(jax.random.PRNGKey(seed)))

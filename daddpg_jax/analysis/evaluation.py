@@ -27,7 +27,7 @@ import os
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -72,11 +72,11 @@ class Policy:
     state: Any         # restored TrainState
 
 
-def load_policy(run_dir: str, step: Optional[int] = None, physics: Optional[str] = None) -> Policy:
+def load_policy(run_dir: str, step: int | None = None, physics: str | None = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest)."""
+    from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
     from daddpg_jax.running.runner import make_env
-    from daddpg_jax.algo.train import make_train_fns
 
     try:
         ckpt.check_run_dir(run_dir, step)
@@ -100,23 +100,24 @@ _ROLLOUTS: dict = {}
 def _rollout_fn(policy: Policy, n: int):
     import jax
 
+    from daddpg_jax.algo import acting
+
     key_ = (id(policy.env), id(policy.fns), n)
     if key_ in _ROLLOUTS:
         return _ROLLOUTS[key_]
-    env, act, T = policy.env, policy.fns.act, policy.env.episode_length
+    env, act = policy.env, policy.fns.act
+
+    def record(s, a, s2):
+        return dict(success=s2.metrics["success"], arm_contact=s2.metrics["arm_contact"],
+                    ag=s2.obs["achieved_goal"], qpos=env.backend.qpos(s2.data),
+                    mocap=env.backend.mocap_pos(s2.data)[:, :2])
 
     def run(state, key):
-        k_reset, _ = jax.random.split(key)
-        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n))
+        def actors(s, _):
+            return act(state, s.obs["observation"], s.obs["desired_goal"])
 
-        def step(s, _):
-            a = act(state, s.obs["observation"], s.obs["desired_goal"])
-            s2 = jax.vmap(env.step)(s, a)
-            return s2, dict(success=s2.metrics["success"], arm_contact=s2.metrics["arm_contact"],
-                            ag=s2.obs["achieved_goal"], qpos=env.backend.qpos(s2.data),
-                            mocap=env.backend.mocap_pos(s2.data)[:, :2])
-
-        _, tr = jax.lax.scan(step, s0, None, length=T)
+        # the episodes of the trainer's evaluation: the same reset keys
+        s0, tr = acting.rollout(env, actors, acting.episode_keys(key, n), record=record)
         first = dict(qpos=env.backend.qpos(s0.data), mocap=env.backend.mocap_pos(s0.data)[:, :2])
         return tr, first, s0.obs["desired_goal"]
 
@@ -125,7 +126,7 @@ def _rollout_fn(policy: Policy, n: int):
     return fn
 
 
-def _metrics_row(run_dir: str, epoch: int) -> Optional[dict]:
+def _metrics_row(run_dir: str, epoch: int) -> dict | None:
     path = os.path.join(run_dir, "metrics.csv")
     if not os.path.exists(path):
         return None
@@ -136,7 +137,7 @@ def _metrics_row(run_dir: str, epoch: int) -> Optional[dict]:
     return None
 
 
-def evaluate(policy: Policy, episodes: int = 100, seed: Optional[int] = None):
+def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
     """Runs ``episodes`` deterministic episodes at once. Returns (summary dict, trajectory)
     where the trajectory holds NumPy arrays for rendering: ``qpos`` [N, T+1, nq],
     ``mocap`` [N, T+1, 2, 3], ``goal`` [N, 2, 3], ``success`` [N], ``arm_contact`` [N]."""
@@ -164,7 +165,8 @@ def evaluate(policy: Policy, episodes: int = 100, seed: Optional[int] = None):
         "success_rate": k / n, "successes": k, "success_ci95": list(wilson_interval(k, n)),
         "arm_contact_rate": c / n, "arm_contact_episodes": c,
         "arm_contact_ci95": list(wilson_interval(c, n)),
-        "final_distance_mean": {"left": float(dist[:, 0].mean()), "right": float(dist[:, 1].mean())},
+        "final_distance_mean": {"left": float(dist[:, 0].mean()),
+                                "right": float(dist[:, 1].mean())},
         "final_distance_median": {"left": float(np.median(dist[:, 0])),
                                   "right": float(np.median(dist[:, 1]))},
         "distance_threshold": float(policy.env.config.distance_threshold),

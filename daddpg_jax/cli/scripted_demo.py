@@ -47,6 +47,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     import mjx_envs
+    from daddpg_jax.algo import acting
     from mjx_envs import schema, settings
     from mjx_envs.tasks import scripted
 
@@ -62,19 +63,17 @@ def main(argv=None) -> int:
     else:
         policy = scripted.get_policy(args.task)
 
+    def record(s, a, s2):
+        return (env.backend.qpos(s2.data), env.backend.mocap_pos(s2.data),
+                s2.metrics["success"], s2.obs["desired_goal"], s2.obs["achieved_goal"])
+
     @jax.jit
     def rollout(keys):
-        s = jax.vmap(env.reset)(keys)
-
-        def body(s, _):
-            s = jax.vmap(env.step)(s, policy(s.obs, env.config.max_delta))
-            return s, (env.backend.qpos(s.data), env.backend.mocap_pos(s.data),
-                       s.metrics["success"], s.obs["desired_goal"], s.obs["achieved_goal"])
-
-        return jax.lax.scan(body, s, None, length=env.episode_length)
+        return acting.rollout(env, lambda s, _: policy(s.obs, env.config.max_delta), keys,
+                              record=record)[1]
 
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
-    _, (qpos, mocap, success, goal, achieved) = jax.tree.map(np.asarray, rollout(keys))
+    qpos, mocap, success, goal, achieved = jax.tree.map(np.asarray, rollout(keys))
     final = success[-1]
     dist = np.linalg.norm(achieved[-1] - goal[-1], axis=-1).mean(axis=0)  # [arms]
     for i, ok in enumerate(final):

@@ -17,14 +17,16 @@ import csv
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
+from typing import Any
 
 import jax
 import numpy as np
 
-from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.running import checkpoint as ckpt
 
 METRIC_COLUMNS = (
     "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
@@ -75,18 +77,18 @@ def _scalar(x) -> float:
     return float(np.mean(np.asarray(x)))
 
 
-def make_env(cfg: TrainConfig, env_overrides: Optional[dict] = None):
+def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
     import mjx_envs
 
     return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
 
 
-def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
-          resume: bool = False, progress: Optional[Callable[[dict], None]] = None,
-          on_epoch: Optional[Callable[[dict], None]] = None, plot: bool = True,
-          command: Optional[str] = None, time_budget_s: Optional[float] = None,
-          env: Any = None, update_progress: Optional[Callable[[int], None]] = None,
-          update_tick: int = 0, demo_policy: Optional[Callable] = None) -> RunResult:
+def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
+          resume: bool = False, progress: Callable[[dict], None] | None = None,
+          on_epoch: Callable[[dict], None] | None = None, plot: bool = True,
+          command: str | None = None, time_budget_s: float | None = None,
+          env: Any = None, update_progress: Callable[[int], None] | None = None,
+          update_tick: int = 0, demo_policy: Callable | None = None) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
@@ -107,27 +109,16 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
                          update_tick=update_tick, demo_policy=demo_policy)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
-    rows = _read_rows(metrics_path) if resume else []
-    start_epoch, wall_offset = 0, 0.0
+    rows, start_epoch, wall_offset = [], 0, 0.0
     if resume:
-        step = ckpt.latest_step(run_dir)
-        if step is None:
-            raise FileNotFoundError(f"--resume: no checkpoint in {ckpt.checkpoint_dir(run_dir)}")
-        state, start_epoch = ckpt.restore(run_dir, state, step)
-        rows = [r for r in rows if int(r["epoch"]) <= start_epoch]
-        # rewrite the CSV without rows of epochs after the checkpoint (a crash between the CSV
-        # write and the checkpoint)
-        if os.path.exists(metrics_path):
-            os.remove(metrics_path)
-        for r in rows:
-            _append_row(metrics_path, r)
-        wall_offset = float(rows[-1]["wall_time"]) if rows else 0.0
+        state, start_epoch, rows, wall_offset = _resume(run_dir, state)
     else:
         if os.path.exists(metrics_path):
             os.remove(metrics_path)
         ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
-                         env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))), command=command,
-                         num_agents=cfg.num_agents, physics_resolved=getattr(env, "physics", None))
+                         env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
+                         command=command, num_agents=variants.get(cfg.algo).num_agents,
+                         physics_resolved=getattr(env, "physics", None))
 
     t_start = time.perf_counter()
     last = rows[-1] if rows else None
@@ -143,23 +134,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
                 f"(epoch {ckpt.latest_step(run_dir)}) is kept in {ckpt.checkpoint_dir(run_dir)}.")
         epoch += 1
         ev = jax.device_get(fns.evaluate(state))
-        env_steps = fns.env_steps(state)
-        fd = np.asarray(ev["final_distance"]).reshape(-1)
-        row = {
-            "epoch": epoch, "env_steps": env_steps, "updates": int(state.updates),
-            "wall_time": round(wall_offset + time.perf_counter() - t_start, 3),
-            "test_success_rate": _scalar(ev["success"]),
-            "test_arm_contact_rate": _scalar(ev["arm_contact"]),
-            "test_final_distance_left": float(fd[0]), "test_final_distance_right": float(fd[-1]),
-            "train_success_rate": _scalar(m["success"]),
-            "train_arm_contact_rate": _scalar(m["arm_contact"]),
-            "critic_loss": _scalar(m["critic_loss"]), "actor_loss": _scalar(m["actor_loss"]),
-            "mean_q": _scalar(m["mean_q"]) if "mean_q" in m else math.nan,
-            "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / dt,
-            "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
-            "bc_loss": _scalar(m["bc_loss"]) if "bc_loss" in m else math.nan,
-            "q_filter_pass": _scalar(m["q_filter_pass"]) if "q_filter_pass" in m else math.nan,
-        }
+        row = _epoch_row(cfg, env, epoch, fns.env_steps(state), int(state.updates),
+                         round(wall_offset + time.perf_counter() - t_start, 3), ev, m, dt)
         _append_row(metrics_path, row)
         ckpt.save(run_dir, state, epoch, save_buffer=cfg.save_buffer, keep=cfg.keep_checkpoints)
         rows.append(row)
@@ -177,6 +153,46 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: Optional[dict] = None,
         return RunResult(run_dir, epoch, fns.env_steps(state), wall_offset, math.nan, rows)
     return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
                      float(last["wall_time"]), float(last["test_success_rate"]), rows)
+
+
+def _resume(run_dir: str, state):
+    """(state restored from the latest checkpoint, its epoch, the CSV rows up to it, their
+    wall time); metrics.csv is rewritten without rows of epochs after the checkpoint (a crash
+    between the CSV write and the checkpoint)."""
+    metrics_path = os.path.join(run_dir, "metrics.csv")
+    rows = _read_rows(metrics_path)
+    step = ckpt.latest_step(run_dir)
+    if step is None:
+        raise FileNotFoundError(f"--resume: no checkpoint in {ckpt.checkpoint_dir(run_dir)}")
+    state, start_epoch = ckpt.restore(run_dir, state, step)
+    rows = [r for r in rows if int(r["epoch"]) <= start_epoch]
+    if os.path.exists(metrics_path):
+        os.remove(metrics_path)
+    for r in rows:
+        _append_row(metrics_path, r)
+    wall_offset = float(rows[-1]["wall_time"]) if rows else 0.0
+    return state, start_epoch, rows, wall_offset
+
+
+def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, wall: float,
+               ev: dict, m: dict, dt: float) -> dict:
+    """The metrics.csv row of an epoch: ev = evaluation, m = the epoch's per-cycle metrics,
+    dt = the epoch's seconds."""
+    fd = np.asarray(ev["final_distance"]).reshape(-1)
+    return {
+        "epoch": epoch, "env_steps": env_steps, "updates": updates, "wall_time": wall,
+        "test_success_rate": _scalar(ev["success"]),
+        "test_arm_contact_rate": _scalar(ev["arm_contact"]),
+        "test_final_distance_left": float(fd[0]), "test_final_distance_right": float(fd[-1]),
+        "train_success_rate": _scalar(m["success"]),
+        "train_arm_contact_rate": _scalar(m["arm_contact"]),
+        "critic_loss": _scalar(m["critic_loss"]), "actor_loss": _scalar(m["actor_loss"]),
+        "mean_q": _scalar(m["mean_q"]) if "mean_q" in m else math.nan,
+        "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / dt,
+        "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
+        "bc_loss": _scalar(m["bc_loss"]) if "bc_loss" in m else math.nan,
+        "q_filter_pass": _scalar(m["q_filter_pass"]) if "q_filter_pass" in m else math.nan,
+    }
 
 
 def _jsonable(d: dict) -> dict:

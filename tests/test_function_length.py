@@ -1,0 +1,49 @@
+"""No function in daddpg_jax/ or mjx_envs/ is longer than MAX_LINES lines (a nested function
+counts as part of the function that encloses it; decorators and docstrings count)."""
+
+import ast
+import os
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PACKAGES = ("daddpg_jax", "mjx_envs")
+MAX_LINES = 100
+
+
+def outermost_functions(tree: ast.AST):
+    """Functions and methods not inside another function."""
+    for node in ast.iter_child_nodes(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            yield node
+        else:
+            yield from outermost_functions(node)
+
+
+def long_functions(package: str, max_lines: int = MAX_LINES) -> list[str]:
+    out = []
+    for dirpath, dirnames, filenames in os.walk(os.path.join(ROOT, package)):
+        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
+        for name in sorted(f for f in filenames if f.endswith(".py")):
+            path = os.path.join(dirpath, name)
+            with open(path, encoding="utf-8") as f:
+                tree = ast.parse(f.read(), path)
+            for fn in outermost_functions(tree):
+                first = min([fn.lineno] + [d.lineno for d in fn.decorator_list])
+                n = fn.end_lineno - first + 1
+                if n > max_lines:
+                    out.append(f"{os.path.relpath(path, ROOT)}:{first} {fn.name}: {n} lines")
+    return out
+
+
+def test_outermost_functions_counts_nested_in_the_enclosing_one():
+    tree = ast.parse("def f():\n    def g():\n        pass\n    return g\n"
+                     "class C:\n    def m(self):\n        pass\n")
+    assert [f.name for f in outermost_functions(tree)] == ["f", "m"]
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_no_function_longer_than_max_lines(package):
+    too_long = long_functions(package)
+    assert not too_long, (f"functions longer than {MAX_LINES} lines (split them):\n"
+                          + "\n".join(too_long))
