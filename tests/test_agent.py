@@ -53,6 +53,22 @@ def test_critic_loss_uses_clipped_target_of_target_networks():
     np.testing.assert_allclose(aux["critic_loss"], ((y - q) ** 2).mean(1), rtol=1e-5, atol=1e-5)
 
 
+def test_critic_loss_n_step_discount_per_row():
+    cfg, learner, st = make("daddpg")
+    batch = random_batch(jax.random.PRNGKey(2), 2)
+    disc = jnp.asarray(np.random.default_rng(0).choice([0.98, 0.98 ** 2, 0.98 ** 3], B),
+                       jnp.float32)
+    _, aux = agent_lib.critic_loss(st.critic, st.target_actor, st.target_critic,
+                                   dict(batch, discount=disc), learner)
+    a2 = nets.joint_action(
+        agent_lib.policy_actions(learner, st.target_actor, batch["o2"], batch["g"]))
+    q2 = np.asarray(agent_lib.q_values(learner, st.target_critic, batch["o2"], batch["g"],
+                                       jnp.stack([a2, a2])))
+    y = np.clip(np.asarray(batch["r"]) + np.asarray(disc)[None] * q2, learner.target_lo,
+                learner.target_hi)
+    np.testing.assert_allclose(aux["mean_target"], y.mean(1), rtol=1e-5, atol=1e-5)
+
+
 def test_polyak_matches_numpy():
     rng = np.random.default_rng(0)
     tgt = {"w": rng.normal(size=(2, 3, 4)).astype(np.float32),

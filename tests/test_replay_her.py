@@ -164,3 +164,59 @@ def test_rewards_include_info_terms_and_match_env():
     np.testing.assert_allclose(out["r"], jnp.swapaxes(tr["reward"], 0, 1).reshape(n * T, 2),
                                atol=1e-6)
     assert np.any(np.asarray(eps.info["arm_contact_penalty"]) < 0)  # the info term contributed
+
+
+def _n_step_reference(eps, ep, t, g, goal_t, n, gamma, compute_reward):
+    """Plain-Python n-step transitions: loop over rows and steps."""
+    np_eps = jax.tree.map(np.asarray, eps)
+    rs, o2s, discs = [], [], []
+    for b in range(len(ep)):
+        e, tt = int(ep[b]), int(t[b])
+        m = min(n, T - tt)
+        r = np.zeros(2, np.float32)
+        for k in range(m):
+            info = {name: v[e, tt + k] for name, v in np_eps.info.items()}
+            r_k = np.asarray(compute_reward(np_eps.ag[e, tt + k + 1], g[b], info))
+            r = r + np.float32(gamma) ** k * r_k
+        rs.append(r)
+        o2s.append(np_eps.obs[e, tt + m])
+        discs.append(np.float32(gamma) ** m)
+    return np.stack(rs), np.stack(o2s), np.asarray(discs)
+
+
+@pytest.mark.parametrize("her", ["future", "none"])
+def test_n_step_returns_match_a_python_loop(her):
+    eps = make_episodes(4, seed=3)
+    key = jax.random.PRNGKey(7)
+    ep = jnp.asarray(np.repeat(np.arange(4), T), jnp.int32)
+    t = jnp.asarray(np.tile(np.arange(T), 4), jnp.int32)
+    gamma = 0.9
+    for n in (2, 3, T + 2):
+        out = replay.her_transitions(key, eps, ep, t, her, 0.8, ENV.compute_reward,
+                                     n_step=n, gamma=gamma)
+        one = replay.her_transitions(key, eps, ep, t, her, 0.8, ENV.compute_reward)
+        # same relabelling draws as the one-step transition: n-step consumes no randomness
+        np.testing.assert_array_equal(out["g"], one["g"])
+        np.testing.assert_array_equal(out["goal_t"], one["goal_t"])
+        r, o2, disc = _n_step_reference(eps, np.asarray(ep), np.asarray(t), np.asarray(out["g"]),
+                                        np.asarray(out["goal_t"]), n, gamma,
+                                        ENV.compute_reward)
+        np.testing.assert_allclose(out["r"], r, rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(out["o2"], o2)
+        np.testing.assert_allclose(out["discount"], disc, rtol=1e-6)
+        # truncated at the episode end: the last step bootstraps from slot T with gamma^1
+        last = np.asarray(t) == T - 1
+        np.testing.assert_allclose(np.asarray(out["discount"])[last], gamma, rtol=1e-6)
+        np.testing.assert_array_equal(np.asarray(out["o2"])[last], np.asarray(one["o2"])[last])
+        np.testing.assert_array_equal(np.asarray(out["r"])[last], np.asarray(one["r"])[last])
+
+
+def test_one_step_keeps_the_one_step_batch():
+    eps = make_episodes(3, seed=4)
+    ep = jnp.asarray([0, 1, 2, 2], jnp.int32)
+    t = jnp.asarray([0, 3, 5, 1], jnp.int32)
+    key = jax.random.PRNGKey(1)
+    a = replay.her_transitions(key, eps, ep, t, "future", 0.8, ENV.compute_reward)
+    b = replay.her_transitions(key, eps, ep, t, "future", 0.8, ENV.compute_reward,
+                               n_step=1, gamma=0.5)
+    assert "discount" not in a and tree_equal(a, b)

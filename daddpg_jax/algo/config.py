@@ -64,6 +64,12 @@ class TrainConfig:
         256,
         "transitions per gradient update",
         low=1)
+    n_step: int = spec(
+        1,
+        "n-step returns: each sampled transition's reward is the discounted sum of up to "
+        "n_step rewards of its episode under its (relabelled) goal, truncated at the episode "
+        "end, bootstrapped from the state reached (1 = one-step TD, the HER baselines')",
+        low=1)
     buffer_size: int = spec(
         1_000_000,
         "replay capacity in transitions (stored as buffer_size // T whole episodes)",

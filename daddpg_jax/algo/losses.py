@@ -2,7 +2,9 @@
 
 Per agent i (A agents: 2 arms, or 1 for 'single'):
     critic:  y_i = clip(r_i + gamma * Q'_i(o', g, mu'(o', g)), lo, hi)       (no done mask:
-             episodes are fixed-length time limits, as in the HER baselines)
+             episodes are fixed-length time limits, as in the HER baselines); with n-step
+             returns (TrainConfig.n_step > 1) r_i is the n-step return, o' the state m <= n
+             steps later and gamma^m replaces gamma (batch["discount"])
              L_i = mean_B (y_i - Q_i(o, g, a))^2
     actor:   J_i = -mean_B Q_i(o, g, a with arm i's slot replaced by mu_i(o, g))
                    + action_l2 * mean(mu_i(o, g)^2)
@@ -121,7 +123,9 @@ def critic_loss(critic_params, target_actor, target_critic, batch, learner: Lear
     n = batch["r"].shape[0]
     a2 = nets.joint_action(policy_actions(learner, target_actor, batch["o2"], batch["g"]))
     q2 = q_values(learner, target_critic, batch["o2"], batch["g"], _bcast(a2, n))
-    y = jax.lax.stop_gradient(td_target(batch["r"], q2, learner.gamma, learner.target_lo,
+    # n-step batches carry each row's bootstrap discount gamma^m; one-step batches use gamma
+    gamma = batch["discount"][None] if "discount" in batch else learner.gamma
+    y = jax.lax.stop_gradient(td_target(batch["r"], q2, gamma, learner.target_lo,
                                         learner.target_hi, learner.clip_target))
     q = q_values(learner, critic_params, batch["o"], batch["g"], _bcast(batch["a"], n))
     per_agent = jnp.mean(jnp.square(y - q), axis=1)

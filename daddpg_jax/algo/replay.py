@@ -95,7 +95,7 @@ def sample_indices(key, size, batch_size: int, horizon: int):
 
 
 def her_transitions(key, episodes: Episodes, ep, t, her: str, future_p: float,
-                    compute_reward: Callable) -> dict:
+                    compute_reward: Callable, n_step: int = 1, gamma: float = 1.0) -> dict:
     """Gathers transitions (ep, t) and relabels their goals.
 
     her='future': with probability future_p, t' ~ U{t+1, ..., T} and g' = ag[ep, t'] (both arms);
@@ -104,6 +104,11 @@ def her_transitions(key, episodes: Episodes, ep, t, her: str, future_p: float,
     The reward of each transition is compute_reward(ag[t+1], g', info[t]) -> [B, 2].
     Returns o, o2 [B,2,obs], g [B,2,3] (the goal for s_t and s_{t+1}), ag, ag2, a [B,8],
     r [B,2], info, and for inspection `relabel` [B] bool and `goal_t` [B] (index into ag).
+
+    n_step > 1: n-step returns under the (relabelled) goal g', truncated at the episode end:
+    with m = min(n_step, T - t), r = sum_{k<m} gamma^k compute_reward(ag[t+k+1], g', info[t+k]),
+    o2 = obs[t+m] (the bootstrap state) and `discount` [B] = gamma^m for its value. n_step = 1
+    gives the one-step transition above (no `discount`: the learner uses gamma).
     """
     horizon = episodes.horizon
     b = ep.shape[0]
@@ -124,19 +129,40 @@ def her_transitions(key, episodes: Episodes, ep, t, her: str, future_p: float,
         g = jnp.where(relabel[:, None, None], episodes.ag[ep, jnp.maximum(goal_t, 0)], g)
     ag2 = episodes.ag[ep, t + 1]
     info = {k: v[ep, t] for k, v in episodes.info.items()}
-    return dict(
+    out = dict(
         o=episodes.obs[ep, t], o2=episodes.obs[ep, t + 1], g=g,
         ag=episodes.ag[ep, t], ag2=ag2, a=episodes.actions[ep, t],
         r=compute_reward(ag2, g, info).astype(jnp.float32), info=info,
         relabel=relabel, goal_t=goal_t,
     )
+    if n_step > 1:
+        out.update(n_step_return(episodes, ep, t, g, compute_reward, n_step, gamma))
+    return out
+
+
+def n_step_return(episodes: Episodes, ep, t, g, compute_reward: Callable, n_step: int,
+                  gamma: float) -> dict:
+    """r [B, 2], o2 [B, 2, obs], discount [B] of n-step transitions (ep, t) under goals g
+    [B, 2, 3], truncated at the episode end (see `her_transitions`)."""
+    horizon = episodes.horizon
+    k = jnp.arange(n_step, dtype=jnp.int32)                               # [n]
+    m = jnp.minimum(n_step, horizon - t)                                   # [B] steps used
+    tk = jnp.minimum(t[:, None] + k[None], horizon - 1)                    # [B, n]
+    ag_k = episodes.ag[ep[:, None], tk + 1]                                # [B, n, 2, 3]
+    info_k = {name: v[ep[:, None], tk] for name, v in episodes.info.items()}
+    r_k = compute_reward(ag_k, g[:, None], info_k).astype(jnp.float32)     # [B, n, 2]
+    w = jnp.where(k[None] < m[:, None], jnp.float32(gamma) ** k.astype(jnp.float32), 0.0)
+    return dict(r=jnp.sum(w[..., None] * r_k, axis=1),
+                o2=episodes.obs[ep, t + m],
+                discount=jnp.float32(gamma) ** m.astype(jnp.float32))
 
 
 def sample(key, buf: ReplayBuffer, batch_size: int, her: str, future_p: float,
-           compute_reward: Callable) -> dict:
-    """A HER-relabelled minibatch from the written part of the buffer."""
+           compute_reward: Callable, n_step: int = 1, gamma: float = 1.0) -> dict:
+    """A HER-relabelled minibatch from the written part of the buffer (n-step returns with
+    n_step > 1, see `her_transitions`)."""
     k_idx, k_her = jax.random.split(key)
     ep, t = sample_indices(k_idx, buf.size, batch_size, buf.data.horizon)
-    out = her_transitions(k_her, buf.data, ep, t, her, future_p, compute_reward)
+    out = her_transitions(k_her, buf.data, ep, t, her, future_p, compute_reward, n_step, gamma)
     out["ep"], out["t"] = ep, t
     return out

@@ -264,19 +264,23 @@ def _init_fn(sp: _Setup, update_normalizers):
 def _update_batch(sp: _Setup, state: TrainState, key, demo_rows):
     """A normalized update batch: batch_local HER replay rows (+ demo_local demo rows)."""
     cfg, T = sp.cfg, sp.horizon
+    n_step = dict(n_step=cfg.n_step, gamma=cfg.gamma)
     b = replay.sample(key, state.buffer, sp.batch_local, cfg.her, cfg.future_p,
-                      sp.env.compute_reward)
-    b = {name: b[name] for name in ("o", "o2", "g", "a", "r")}
+                      sp.env.compute_reward, **n_step)
+    names = ("o", "o2", "g", "a", "r") + (("discount",) if cfg.n_step > 1 else ())
+    b = {name: b[name] for name in names}
     if cfg.n_demos > 0:
         k_idx, k_her = jax.random.split(jax.random.fold_in(key, DEMO_STREAM))
         ep, t = replay.sample_indices(k_idx, int(cfg.n_demos), sp.demo_local, T)
         d = replay.her_transitions(k_her, state.demos, ep, t, cfg.her, cfg.future_p,
-                                   sp.env.compute_reward)
+                                   sp.env.compute_reward, **n_step)
         b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
     o, g = _normalize_inputs(cfg, state, b["o"], b["g"])
     o2 = norm.normalize(state.obs_norm, b["o2"], **_norm_kw(cfg))
     batch = dict(o=o, o2=o2, g=g, a=b["a"],
                  r=agent_lib.agent_rewards(sp.learner.variant, b["r"]))
+    if cfg.n_step > 1:
+        batch["discount"] = b["discount"]
     if cfg.n_demos > 0:
         batch["demo"] = demo_rows
     return batch
