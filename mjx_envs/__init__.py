@@ -11,8 +11,12 @@ the JAX environments on first use.
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 from mjx_envs.settings import TASKS, default_config  # noqa: F401  (JAX-free)
+
+if TYPE_CHECKING:
+    from mjx_envs.core import DualArmEnv
 
 # task name -> env class, or (module, class name) until first use
 _REGISTRY: dict = {
@@ -61,7 +65,7 @@ def register(name: str, cls) -> None:
     _REGISTRY[name] = cls
 
 
-def make(task: str, physics: str = "auto", **overrides) -> "DualArmEnv":
+def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
     """Build a task's env. ``physics``: 'auto' (MJX on an accelerator, C on CPU), 'mjx' or 'c'.
 
     Keyword overrides replace fields of the task's ``default_config()``.

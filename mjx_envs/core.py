@@ -15,23 +15,21 @@ fingers held closed when ``lock_fingers``). See docs/ENVIRONMENTS.md for why.
 
 from __future__ import annotations
 
-import dataclasses
-from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import settings
+from mjx_envs import rules, settings
+from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
 
-ASSETS = Path(__file__).resolve().parent.parent / "assets"
 NUM_ARMS = 2
+SAMPLER = rules.JaxSampler()
 
 
 @struct.dataclass
@@ -47,14 +45,16 @@ class State:
 
 
 class DualArmEnv:
-    """Two UR3 arms with grippers; subclasses choose goals, objects and achieved goals."""
+    """Two UR3 arms with grippers. What differs between tasks (goals, object placement,
+    achieved goals, rewards) is ``self.rules``, a `mjx_envs.rules.TaskRules` bound to the task's
+    settings (`mjx_envs.settings`, chosen by ``task_name``) and scene."""
 
     task_name = "base"
     num_arms = NUM_ARMS
     action_size = 8
     goal_size = 3
     obs_size = obs_lib.OBS_SIZE
-    info_keys: tuple[str, ...] = ("arm_contact_penalty",)
+    info_keys: tuple[str, ...] = rules.INFO_KEYS
 
     @classmethod
     def default_config(cls) -> TaskConfig:
@@ -73,59 +73,35 @@ class DualArmEnv:
         self.episode_length = int(cfg.episode_length)
         self.dt = float(cfg.timestep * cfg.n_substeps)
         self.sensors = obs_lib.SensorLayout.from_model(self.mj_model)
-        key = self.mj_model.key("home")
-        self._home_qpos = np.asarray(key.qpos, np.float32)
-        self._home_mocap = np.asarray(key.mpos, np.float32).reshape(-1, 3)[:NUM_ARMS]
+        self._home_qpos, self._home_mocap = home_state(self.mj_model)
         self._ws_low = np.asarray(cfg.workspace_low, np.float32)
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
+        self.rules = rules.TaskRules(cfg, self.mj_model, settings.OBJECTS.get(self.task_name))
         self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
-
-    # -- task hooks -----------------------------------------------------------------------------
-
-    def _sample_goal(self, key) -> jax.Array:
-        """Desired goal [2, 3]."""
-        raise NotImplementedError
-
-    def _init_qpos(self, key) -> jax.Array:
-        """Initial qpos (objects placed); default: the home keyframe."""
-        return jnp.asarray(self._home_qpos)
-
-    def _achieved_goal(self, arm, obj) -> jax.Array:
-        """Achieved goal [2, 3] from the sensor readings."""
-        raise NotImplementedError
 
     # -- rewards ----------------------------------------------------------------------------------
 
     def goal_distance(self, achieved_goal, desired_goal):
-        return jnp.linalg.norm(achieved_goal - desired_goal, axis=-1)
+        return self.rules.goal_distance(jnp, achieved_goal, desired_goal)
 
     def success(self, achieved_goal, desired_goal):
         """1.0 where every arm is within the threshold; shape = leading axes."""
-        d = self.goal_distance(achieved_goal, desired_goal)
-        return jnp.all(d < self.config.distance_threshold, axis=-1).astype(jnp.float32)
+        return self.rules.success(jnp, achieved_goal, desired_goal)
 
     def reward_terms(self, achieved_goal, desired_goal) -> dict[str, jax.Array]:
         """Goal-dependent per-arm terms [..., 2] (raw, before scaling)."""
-        d = self.goal_distance(achieved_goal, desired_goal)
-        goal = -(d >= self.config.distance_threshold).astype(jnp.float32)
-        team = jnp.broadcast_to((self.success(achieved_goal, desired_goal) - 1.0)[..., None],
-                                goal.shape)
-        return {"goal": goal, "team": team}
+        return self.rules.reward_terms(jnp, achieved_goal, desired_goal)
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
         """Per-arm reward [..., 2]: goal term + team term + goal-independent ``info`` terms.
 
         Broadcasts over any leading axes; 0 exactly when the arm is within the threshold (and,
-        with a team term, when both are) and no penalty applies.
+        with a team term, when both are) and no penalty applies. ``info`` may be None, ``{}`` or
+        lack any of ``info_keys``: a missing term counts as 0 (the Gymnasium/HER convention).
         """
-        cfg = self.config
-        t = self.reward_terms(jnp.asarray(achieved_goal), jnp.asarray(desired_goal))
-        r = cfg.goal_scale * t["goal"] + cfg.team_scale * t["team"]
-        if info is not None:
-            for k in self.info_keys:
-                r = r + info[k]
-        return r
+        return self.rules.reward(jnp, jnp.asarray(achieved_goal), jnp.asarray(desired_goal),
+                                 info)
 
     # -- API --------------------------------------------------------------------------------------
 
@@ -137,25 +113,20 @@ class DualArmEnv:
             opening = (finger_cmd + 1.0) * 0.5 * cfg.finger_stroke
         return jnp.repeat(opening, 2)  # two finger servos per arm: [l1, l2, r1, r2]
 
-    def _observe(self, data, desired_goal, step, prev_metrics=None):
+    def _observe(self, data, desired_goal, step):
         sens = self.backend.sensordata(data)
         obs, arm, obj = obs_lib.observe(jnp, self.sensors, sens, self.dt)
-        ag = self._achieved_goal(arm, obj).astype(jnp.float32)
+        ag = self.rules.achieved_goal(arm, obj).astype(jnp.float32)
         clearance = obs_lib.arm_clearance(jnp, arm["link_points"])
-        arm_contact = (clearance < self.config.arm_clearance).astype(jnp.float32)
-        info = {
-            "arm_contact_penalty": jnp.full((NUM_ARMS,), -self.config.arm_contact_penalty,
-                                            jnp.float32) * arm_contact,
-            "step": step,
-        }
+        arm_contact, info = self.rules.contact_terms(jnp, clearance)
+        info["step"] = step
         terms = self.reward_terms(ag, desired_goal)
-        reward = self.compute_reward(ag, desired_goal, info)
-        dist = self.goal_distance(ag, desired_goal)
+        reward = self.rules.reward(jnp, ag, desired_goal, info, terms=terms)
         metrics = {
             "success": self.success(ag, desired_goal),
             "arm_contact": arm_contact,
             "arm_clearance": clearance.astype(jnp.float32),
-            "goal_distance": jnp.mean(dist),
+            "goal_distance": jnp.mean(self.goal_distance(ag, desired_goal)),
             "reward": jnp.mean(reward),
             "reward_goal": jnp.mean(terms["goal"]),
             "reward_team": jnp.mean(terms["team"]),
@@ -167,9 +138,7 @@ class DualArmEnv:
         return o, reward.astype(jnp.float32), metrics, info
 
     def reset(self, key) -> State:
-        k_goal, k_init = jax.random.split(key)
-        goal = self._sample_goal(k_goal).astype(jnp.float32)
-        qpos = self._init_qpos(k_init).astype(jnp.float32)
+        goal, qpos = self.rules.reset(jnp, SAMPLER, key)
         qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
         mocap = jnp.asarray(self._home_mocap)
         data = self.backend.init(qpos, qvel, mocap)
@@ -195,17 +164,3 @@ class DualArmEnv:
 
         return render_state(self, state, width=width, height=height, camera=camera)
 
-
-def load_model(scene: str, timestep: float | None = None, cone: str | None = None) -> mujoco.MjModel:
-    path = ASSETS / scene
-    if not path.exists():
-        raise FileNotFoundError(f"scene {path} not found")
-    m = mujoco.MjModel.from_xml_path(str(path))
-    if timestep is not None:
-        m.opt.timestep = float(timestep)
-    if cone is not None:
-        cones = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
-        if cone not in cones:
-            raise ValueError(f"cone must be one of {sorted(cones)}, got {cone!r}")
-        m.opt.cone = cones[cone]
-    return m

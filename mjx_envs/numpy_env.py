@@ -1,68 +1,66 @@
-"""Plain-MuJoCo, NumPy-only stand-in for the real dual-arm robot (no JAX).
+"""Plain-MuJoCo, NumPy-only simulator of every task (no JAX): the stand-in for the real dual-arm
+robot and the engine of the Gymnasium adapter (`mjx_envs.gym_env`).
 
-The robot client (``experiments/robot_client.py``) drives this env the way it would drive the
-real robot: read sensors, build observations with ``mjx_envs.observation`` (``xp = numpy``),
-ask the policy service for an action, move the Cartesian targets. The step mirrors
+The robot client (``daddpg_jax/cli/robot_client.py``) drives this env the way it would drive the
+real robot: read sensors, build observations with `mjx_envs.observation` (``xp = numpy``), ask
+the policy service for an action, move the Cartesian targets. The step mirrors
 ``mjx_envs.core.DualArmEnv.step`` on the C engine:
 
-- the same MJCF scene from ``assets/`` with the task's timestep and friction cone;
+- the same MJCF scene (`mjx_envs.model.load_model`) with the task's timestep and friction cone;
 - target = previous target + ``max_delta * clip(a[:3], -1, 1)``, clipped to the arm's
   workspace box; finger servo targets from ``a[3]`` (or held at ``locked_opening``);
 - ``mujoco.mj_step`` ``n_substeps`` times holding ctrl and mocap; sensors are read right after
   the last substep (MuJoCo evaluates them before that substep's final integration, as in the
   trainer's engines);
-- goals sampled uniformly (NumPy) from the same per-arm goal region as the task.
+- goals, the object's initial placement, achieved goals, success and rewards from the same
+  rules as the JAX env (`mjx_envs.rules`, ``xp = numpy``), drawn from a NumPy ``Generator``.
+
+Settings: the task's entry of `mjx_envs.settings`; ``settings`` (a dict, e.g. a policy export's
+``env`` settings, or a `TaskConfig`) overrides them. Dict keys that are not config fields (such
+as the export's derived ``dt``) are ignored.
 
 ``exact=True`` (default) also repeats the C backend's bookkeeping: state kept in float32
 between control steps, and every control step starts from ``mj_resetData`` + that state (so the
 solver warmstart is zero, as ``mujoco.rollout`` does). Then the trajectory equals the trainer's
 C-engine env to float32 rounding. ``exact=False`` keeps one float64 ``MjData`` running, like a
 real simulator would.
-
-Only the reach task is supported (object tasks need their object placement and goal sampling
-ported; see docs/DEPLOYMENT.md).
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from mjx_envs import observation as obs_lib
+from mjx_envs import rules
+from mjx_envs import settings as settings_lib
+from mjx_envs.model import home_state, load_model
+from mjx_envs.schema import fields
 
-ASSETS = Path(__file__).resolve().parent.parent / "assets"
 NUM_ARMS = 2
-SUPPORTED_TASKS = ("reach",)
-
-# settings of the reach task's default_config() (mjx_envs/tasks/reach.py + core.TaskConfig); the
-# policy export carries the values a run actually used, which take precedence
-REACH_SETTINGS: dict[str, Any] = dict(
-    scene="scene_reach.xml", episode_length=50, n_substeps=4, timestep=0.01, cone="pyramidal",
-    max_delta=0.05, lock_fingers=True, locked_opening=0.0, finger_stroke=0.04,
-    distance_threshold=0.02, arm_clearance=0.01,
-    workspace_low=[[0.12, -0.14, 0.41], [0.12, -0.36, 0.41]],
-    workspace_high=[[0.40, 0.36, 0.65], [0.40, 0.14, 0.65]],
-    goal_low=[[0.18, -0.08, 0.43], [0.18, -0.30, 0.43]],
-    goal_high=[[0.34, 0.30, 0.60], [0.34, 0.08, 0.60]],
-)
+SUPPORTED_TASKS = settings_lib.TASKS
+SAMPLER = rules.NumpySampler()
 
 
-def load_model(scene: str, timestep: float, cone: str) -> mujoco.MjModel:
-    """The scene with the task's timestep and cone (same overrides as ``core.load_model``)."""
-    path = ASSETS / scene
-    if not path.exists():
-        raise FileNotFoundError(f"scene {path} not found")
-    m = mujoco.MjModel.from_xml_path(str(path))
-    m.opt.timestep = float(timestep)
-    cones = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
-    if cone not in cones:
-        raise ValueError(f"cone must be one of {sorted(cones)}, got {cone!r}")
-    m.opt.cone = cones[cone]
-    return m
+def resolve_config(task: str, overrides=None) -> settings_lib.TaskConfig:
+    """The task's settings, with ``overrides`` (a dict or a full config) applied."""
+    settings_lib.check_task(task)
+    if overrides is None:
+        return settings_lib.default_config(task)
+    base = settings_lib.default_config(task)
+    if isinstance(overrides, settings_lib.TaskConfig):
+        if not isinstance(overrides, type(base)):
+            raise TypeError(f"task {task!r} needs a {type(base).__name__}, got "
+                            f"{type(overrides).__name__}")
+        return overrides
+    names = fields(base)
+    return settings_lib.replace_config(
+        base, **{k: v for k, v in dict(overrides).items() if k in names})
 
 
 @dataclass
@@ -81,89 +79,104 @@ class StepResult:
 
 
 class NumpyDualArmEnv:
-    """One env, stepped with MuJoCo's C engine from NumPy; see the module docstring."""
+    """One env of any task, stepped with MuJoCo's C engine from NumPy; see the module doc."""
 
-    def __init__(self, settings: Optional[Mapping[str, Any]] = None, task: str = "reach",
-                 exact: bool = True):
-        if task not in SUPPORTED_TASKS:
-            raise NotImplementedError(f"the NumPy env supports {SUPPORTED_TASKS}, not {task!r}")
-        s = dict(REACH_SETTINGS)
-        s.update(settings or {})
-        self.settings = s
+    def __init__(self, settings: Mapping[str, Any] | settings_lib.TaskConfig | None = None,
+                 task: str = "reach", exact: bool = True):
+        self.config = cfg = resolve_config(task, settings)
+        self.settings = dataclasses.asdict(cfg)
         self.task = task
         self.exact = bool(exact)
-        self.model = load_model(s["scene"], s["timestep"], s["cone"])
+        self.model = load_model(cfg.scene, cfg.timestep, cfg.cone)
         self.data = mujoco.MjData(self.model)
-        self.n_substeps = int(s["n_substeps"])
-        self.dt = float(s["timestep"]) * self.n_substeps
-        self.episode_length = int(s["episode_length"])
-        self.max_delta = np.float32(s["max_delta"])
-        self.ws_low = np.asarray(s["workspace_low"], np.float32)
-        self.ws_high = np.asarray(s["workspace_high"], np.float32)
-        self.goal_low = np.asarray(s["goal_low"], np.float32)
-        self.goal_high = np.asarray(s["goal_high"], np.float32)
-        self.threshold = float(s["distance_threshold"])
+        self.rules = rules.TaskRules(cfg, self.model, settings_lib.OBJECTS.get(task))
+        self.n_substeps = int(cfg.n_substeps)
+        self.dt = float(cfg.timestep) * self.n_substeps
+        self.episode_length = int(cfg.episode_length)
+        self.max_delta = np.float32(cfg.max_delta)
+        self.ws_low = np.asarray(cfg.workspace_low, np.float32)
+        self.ws_high = np.asarray(cfg.workspace_high, np.float32)
+        self.goal_low = np.asarray(cfg.goal_low, np.float32)
+        self.goal_high = np.asarray(cfg.goal_high, np.float32)
+        self.threshold = float(cfg.distance_threshold)
         self.sensors = obs_lib.SensorLayout.from_model(self.model)
-        key = self.model.key("home")
-        self.home_qpos = np.asarray(key.qpos, np.float32)
-        self.home_mocap = np.asarray(key.mpos, np.float32).reshape(-1, 3)[:NUM_ARMS]
+        self.home_qpos, self.home_mocap = home_state(self.model)
         self._goal = np.zeros((NUM_ARMS, 3), np.float32)
-        self._target = self.home_mocap.copy()
-        self._t = 0
-        # float32 mirror of the C backend's state
-        self._time = np.float32(0.0)
-        self._qpos = self.home_qpos.copy()
-        self._qvel = np.zeros(self.model.nv, np.float32)
-        self._act = np.zeros(self.model.na, np.float32)
-        self._sens = np.zeros(self.model.nsensordata, np.float32)
+        self._set_state(self.home_qpos)
 
-    # -- helpers --------------------------------------------------------------------------------
+    # -- rules (`mjx_envs.rules` with xp = numpy) -----------------------------------------------
 
     def sample_goal(self, rng: np.random.Generator) -> np.ndarray:
-        return rng.uniform(self.goal_low, self.goal_high).astype(np.float32)
+        """A desired goal [2, 3] drawn from ``rng``."""
+        return self.rules.goal(np, SAMPLER, rng).astype(np.float32)
+
+    def sample_qpos(self, rng: np.random.Generator) -> np.ndarray:
+        """An initial qpos [nq]: the home keyframe, the object placed from ``rng``."""
+        return np.array(self.rules.init_qpos(np, SAMPLER, rng), np.float32)
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
+        """Per-arm reward [..., 2] for goals [..., 2, 3], as the JAX env's ``compute_reward``
+        (``info``: a dict of goal-independent terms [..., 2]; missing terms count as 0)."""
+        ag = np.asarray(achieved_goal, np.float32)
+        dg = np.asarray(desired_goal, np.float32)
+        return np.asarray(self.rules.reward(np, ag, dg, info), np.float32)
+
+    def info_terms(self, arm_clearance) -> tuple[float, dict[str, np.ndarray]]:
+        """(arm_contact 0/1, goal-independent reward terms) for an arm clearance, metres."""
+        contact, info = self.rules.contact_terms(np, np.float32(arm_clearance))
+        return float(contact), {k: np.asarray(v, np.float32) for k, v in info.items()}
 
     def finger_ctrl(self, finger_cmd) -> np.ndarray:
-        s = self.settings
-        if s["lock_fingers"]:
-            opening = np.full((NUM_ARMS,), s["locked_opening"], np.float32)
+        cfg = self.config
+        if cfg.lock_fingers:
+            opening = np.full((NUM_ARMS,), cfg.locked_opening, np.float32)
         else:
             opening = ((np.asarray(finger_cmd, np.float32) + np.float32(1.0)) * np.float32(0.5)
-                       * np.float32(s["finger_stroke"]))
+                       * np.float32(cfg.finger_stroke))
         return np.repeat(opening, 2)  # [l1, l2, r1, r2]
 
-    def _result(self) -> StepResult:
-        sens = self._sens
-        obs, arm, _obj = obs_lib.observe(np, self.sensors, sens, self.dt)
-        ag = np.asarray(arm["grip_pos"], np.float32)  # reach: the tool centre points
-        dist = np.linalg.norm(ag - self._goal, axis=-1)
-        clearance = float(obs_lib.arm_clearance(np, arm["link_points"]))
-        return StepResult(observation=obs, achieved_goal=ag, desired_goal=self._goal.copy(),
-                          link_points=np.asarray(arm["link_points"], np.float32),
-                          target=self._target.copy(), success=bool(np.all(dist < self.threshold)),
-                          goal_distance=dist.astype(np.float32), arm_clearance=clearance,
-                          step=self._t)
+    # -- state ------------------------------------------------------------------------------------
 
-    # -- API ------------------------------------------------------------------------------------
-
-    def reset(self, rng: Optional[np.random.Generator] = None, goal=None) -> StepResult:
-        """Home pose, targets at the home mocap, a new goal (from ``rng`` or given)."""
-        if goal is None:
-            rng = rng if rng is not None else np.random.default_rng()
-            goal = self.sample_goal(rng)
-        self._goal = np.asarray(goal, np.float32).reshape(NUM_ARMS, 3)
+    def _set_state(self, qpos) -> None:
+        """Home targets, ``qpos`` at rest, sensors from ``mj_forward`` (as the C backend's init)."""
+        m, d = self.model, self.data
         self._t = 0
         self._target = self.home_mocap.copy()
         self._time = np.float32(0.0)
-        self._qpos = self.home_qpos.copy()
-        self._qvel = np.zeros(self.model.nv, np.float32)
-        self._act = np.zeros(self.model.na, np.float32)
-        m, d = self.model, self.data
+        self._qpos = np.array(qpos, np.float32).reshape(m.nq)
+        self._qvel = np.zeros(m.nv, np.float32)
+        self._act = np.zeros(m.na, np.float32)
         mujoco.mj_resetData(m, d)
         d.qpos[:] = self._qpos
         d.qvel[:] = self._qvel
         d.mocap_pos[:NUM_ARMS] = self._target
         mujoco.mj_forward(m, d)
         self._sens = np.asarray(d.sensordata, np.float32).copy()
+
+    def _result(self) -> StepResult:
+        obs, arm, obj = obs_lib.observe(np, self.sensors, self._sens, self.dt)
+        ag = np.asarray(self.rules.achieved_goal(arm, obj), np.float32)
+        dist = self.rules.goal_distance(np, ag, self._goal)
+        clearance = float(obs_lib.arm_clearance(np, arm["link_points"]))
+        return StepResult(observation=np.asarray(obs, np.float32), achieved_goal=ag,
+                          desired_goal=self._goal.copy(),
+                          link_points=np.asarray(arm["link_points"], np.float32),
+                          target=self._target.copy(),
+                          success=bool(self.rules.success(np, ag, self._goal)),
+                          goal_distance=dist.astype(np.float32), arm_clearance=clearance,
+                          step=self._t)
+
+    # -- API ------------------------------------------------------------------------------------
+
+    def reset(self, rng: np.random.Generator | None = None, goal=None, qpos=None) -> StepResult:
+        """Targets at the home mocap, a new goal and initial state: drawn from ``rng`` (goal
+        first, then the object's placement) unless given (``goal`` [2, 3], ``qpos`` [nq])."""
+        if goal is None or qpos is None:
+            rng = rng if rng is not None else np.random.default_rng()
+            goal = self.sample_goal(rng) if goal is None else goal
+            qpos = self.sample_qpos(rng) if qpos is None else qpos
+        self._goal = np.asarray(goal, np.float32).reshape(NUM_ARMS, 3).copy()
+        self._set_state(qpos)
         return self._result()
 
     def command_targets(self, action) -> tuple[np.ndarray, np.ndarray]:
@@ -209,3 +222,4 @@ class NumpyDualArmEnv:
     @property
     def goal(self) -> np.ndarray:
         return self._goal.copy()
+

@@ -31,7 +31,8 @@ use it as is.
 
 from __future__ import annotations
 
-from typing import Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -67,9 +68,7 @@ class SensorLayout(NamedTuple):
     size: int
 
     @classmethod
-    def from_model(cls, model: Any) -> "SensorLayout":
-        import mujoco  # local: keeps this module importable without MuJoCo
-
+    def from_model(cls, model: Any) -> SensorLayout:
         slices = {}
         for i in range(model.nsensor):
             s = model.sensor(i)
@@ -165,7 +164,8 @@ def build_observation(xp, arm: Mapping[str, Any], obj: Mapping[str, Any], dt: fl
 
 
 def observe(xp, layout: SensorLayout, sensordata, dt: float):
-    """Sensor vector [..., nsensordata] -> (observation [..., 2, 25], arm readings, object readings)."""
+    """Sensor vector [..., nsensordata] -> (observation [..., 2, 25], arm readings, object
+    readings)."""
     arm = read_arm_sensors(xp, layout, sensordata)
     obj = read_object_sensors(xp, layout, sensordata, batch_shape=sensordata.shape[:-1])
     return build_observation(xp, arm, obj, dt), arm, obj

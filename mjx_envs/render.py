@@ -16,7 +16,8 @@ def make_camera(lookat=None, distance=None, azimuth=None, elevation=None) -> muj
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
     cfg = dict(DEFAULT_CAMERA)
-    for k, v in dict(lookat=lookat, distance=distance, azimuth=azimuth, elevation=elevation).items():
+    given = dict(lookat=lookat, distance=distance, azimuth=azimuth, elevation=elevation)
+    for k, v in given.items():
         if v is not None:
             cfg[k] = v
     cam.lookat[:] = cfg["lookat"]
@@ -42,7 +43,7 @@ class Renderer:
         if mocap_pos is not None:
             d.mocap_pos[: len(mocap_pos)] = np.asarray(mocap_pos)
         if desired_goal is not None:
-            for sid, g in zip(self._goal_sites, np.asarray(desired_goal)):
+            for sid, g in zip(self._goal_sites, np.asarray(desired_goal), strict=False):
                 self.model.site_pos[sid] = g
         mujoco.mj_forward(self.model, d)
         self.renderer.update_scene(d, camera=self.camera)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_envs.schema import ConfigError, finalize, fields, from_dict, spec
+from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
 
 TASKS = ("reach", "push", "pickup", "pot")
 
@@ -93,7 +93,7 @@ def _flat(v):
 
 
 def _check_ordered(cfg, lo: str, hi: str) -> None:
-    if any(a > b for a, b in zip(_flat(getattr(cfg, lo)), _flat(getattr(cfg, hi)))):
+    if any(a > b for a, b in zip(_flat(getattr(cfg, lo)), _flat(getattr(cfg, hi)), strict=False)):
         raise ConfigError(f"{lo} must not exceed {hi} ({getattr(cfg, lo)!r} > "
                           f"{getattr(cfg, hi)!r})")
 

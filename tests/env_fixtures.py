@@ -62,6 +62,38 @@ class Rollout:
         self.random_states = random_states
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def rollout(physics: str, task: str = "reach") -> Rollout:
     return Rollout(physics, task)
+
+
+# -- samplers for the task rules (mjx_envs.rules) ---------------------------------------------
+
+class RecordingSampler:
+    """Wraps a sampler and keeps every ``uniform`` draw (as NumPy), in order."""
+
+    def __init__(self, inner):
+        self.inner, self.draws = inner, []
+
+    def split(self, key, num):
+        return self.inner.split(key, num)
+
+    def uniform(self, key, shape, low, high):
+        v = self.inner.uniform(key, shape, low, high)
+        self.draws.append(np.asarray(v))
+        return v
+
+
+class ReplaySampler:
+    """Hands out recorded draws in order (as ``xp`` arrays); keys are ignored."""
+
+    def __init__(self, draws, xp=np):
+        self.draws, self.xp = list(draws), xp
+
+    def split(self, key, num):
+        return (key,) * num
+
+    def uniform(self, key, shape, low, high):
+        v = self.draws.pop(0)
+        assert v.shape == tuple(shape), (v.shape, shape)
+        return self.xp.asarray(v)

@@ -1,5 +1,6 @@
 """Contact tasks (push, pickup, pot): scripted solvability on the C engine, the env contract on
-both engines, and MJX vs C agreement over a short horizon.
+both engines, and MJX vs C agreement over a short horizon; the task rules of every task
+(mjx_envs.rules: NumPy and jax.numpy agree given the same draws).
 
 Compile budget (2-core CPU, cold cache): one MJX program per task (vmapped reset + a 10-step
 scan), ~1.5-2 min each; C-engine programs compile in seconds. JAX's persistent compilation cache
@@ -17,7 +18,11 @@ import pytest
 
 import mjx_envs
 from mjx_envs import observation as obs_lib
+from mjx_envs import rules, settings
+from mjx_envs.core import SAMPLER
+from mjx_envs.model import load_model
 from mjx_envs.tasks import scripted
+from tests.env_fixtures import RecordingSampler, ReplaySampler
 
 TASKS = ("push", "pickup", "pot")
 ENGINES = ("c", "mjx")
@@ -36,7 +41,7 @@ LAY = obs_lib.obs_layout()
 
 # -- shared programs (one compile per task and engine) ---------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _env(task, physics):
     return mjx_envs.make(task, physics=physics)
 
@@ -66,12 +71,12 @@ class OpenLoop:
         self.keys = jax.random.split(jax.random.PRNGKey(7), B)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def open_loop(task, physics):
     return OpenLoop(task, physics)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def parity_actions(task):
     """Actions of the scripted controller, closed loop on the C engine (then replayed open loop)."""
     env = _env(task, "c")
@@ -91,7 +96,7 @@ def parity_actions(task):
     return np.asarray(run(keys))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def open_loop_result(task, physics):
     ol = open_loop(task, physics)
     out = ol.run(ol.keys, jnp.asarray(parity_actions(task)))
@@ -225,7 +230,7 @@ def test_contract(task, physics):
     assert ol.trace_count == 1
     # determinism: same keys and actions -> identical results (no retrace)
     again = jax.tree.map(np.asarray, ol.run(ol.keys, jnp.asarray(parity_actions(task))))
-    for x, y in zip(jax.tree.leaves(again[2]), jax.tree.leaves(obs)):
+    for x, y in zip(jax.tree.leaves(again[2]), jax.tree.leaves(obs), strict=True):
         np.testing.assert_array_equal(x, y)
     assert ol.trace_count == 1
 
@@ -252,12 +257,67 @@ def test_goal_sampling_ranges():
     for task in TASKS:
         env = _env(task, "c")
         keys = jax.random.split(jax.random.PRNGKey(0), 64)
-        g = np.asarray(jax.vmap(env._sample_goal)(keys))
+        g = np.asarray(jax.vmap(lambda k, env=env: env.rules.goal(jnp, SAMPLER, k))(keys))
         centre = g.mean(axis=1)
         span = np.linalg.norm(g[:, 0] - g[:, 1], axis=-1)
-        np.testing.assert_allclose(span, np.linalg.norm(env.point_offsets[0] - env.point_offsets[1]),
-                                   atol=1e-5)  # one rigid pose
+        rigid = np.linalg.norm(env.point_offsets[0] - env.point_offsets[1])
+        np.testing.assert_allclose(span, rigid, atol=1e-5)  # one rigid pose
         h = centre[:, 2] - (env._rest_z + env.point_offsets[:, 2].mean())
         lo, hi = env.config.target_low[2], env.config.target_high[2]
         assert np.all(h >= lo - 1e-5) and np.all(h <= hi + 1e-5)
         assert np.all(g[:, 0, 1] > g[:, 1, 1])  # end / handle 0 on the left arm's side
+
+
+# -- task rules written once over xp (mjx_envs.rules) -------------------------------------------
+
+@functools.cache
+def _task_rules(task):
+    cfg = settings.default_config(task)
+    return rules.TaskRules(cfg, load_model(cfg.scene, cfg.timestep, cfg.cone),
+                           settings.OBJECTS.get(task))
+
+
+@pytest.mark.parametrize("task", ("reach",) + TASKS)
+def test_rules_numpy_and_jax_agree_for_the_same_draws(task):
+    r = _task_rules(task)
+    for seed in range(3):
+        rec = RecordingSampler(SAMPLER)
+        g_jax, q_jax = r.reset(jnp, rec, jax.random.PRNGKey(seed))
+        assert len(rec.draws) == (4 if r.has_object else 1)  # reach: goal; objects: 3 + init
+        g_np, q_np = r.reset(np, ReplaySampler(rec.draws), None)
+        assert g_np.dtype == q_np.dtype == np.float32
+        np.testing.assert_allclose(g_np, np.asarray(g_jax), rtol=0, atol=1e-6)
+        np.testing.assert_allclose(q_np, np.asarray(q_jax), rtol=0, atol=1e-6)
+        assert q_np.shape == r.home_qpos.shape
+    # NumPy draws: within the ranges, float32
+    rng = np.random.default_rng(0)
+    goals = np.stack([r.goal(np, rules.NumpySampler(), rng) for _ in range(50)])
+    assert goals.dtype == np.float32 and goals.shape == (50, 2, 3)
+    if not r.has_object:
+        lo, hi = np.float32(r.config.goal_low), np.float32(r.config.goal_high)
+        assert np.all(goals >= lo) and np.all(goals <= hi)
+
+
+def test_rules_rewards_numpy_and_jax_agree():
+    r = _task_rules("pickup")
+    rng = np.random.default_rng(1)
+    dg = rng.uniform(0, 0.1, (64, 2, 3)).astype(np.float32)
+    ag = (dg + rng.normal(0, 0.04, dg.shape)).astype(np.float32)
+    ag[:8] = dg[:8]  # some successes
+    pen = {"arm_contact_penalty": -0.25 * (rng.uniform(size=(64, 2)) < 0.3).astype(np.float32)}
+    for name in ("goal_distance", "success", "reward_terms"):
+        a = getattr(r, name)(np, ag, dg)
+        b = jax.tree.map(np.asarray, getattr(r, name)(jnp, jnp.asarray(ag), jnp.asarray(dg)))
+        jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-6), a, b)
+    for info in (None, {}, {"step": 3}, pen):
+        a = r.reward(np, ag, dg, info)
+        b = np.asarray(r.reward(jnp, jnp.asarray(ag), jnp.asarray(dg), info))
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(r.reward(np, ag, dg, {}), r.reward(np, ag, dg, None))
+    np.testing.assert_array_equal(r.reward(np, ag, dg, pen) - r.reward(np, ag, dg),
+                                  pen["arm_contact_penalty"])
+    assert np.all(r.success(np, ag, dg)[:8] == 1.0)
+    # achieved goals: the object points (object tasks), the tool centre points (reach)
+    arm, obj = {"grip_pos": ag}, {"object_point": dg}
+    assert r.achieved_goal(arm, obj) is dg
+    assert _task_rules("reach").achieved_goal(arm, obj) is ag

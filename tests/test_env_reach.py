@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -9,11 +13,25 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from mjx_envs import observation as obs_lib
 from daddpg_jax.deploy import ur3
-from tests.env_fixtures import (B, ROW_COLLIDE, ROW_LX, ROW_LY, ROW_LZ, ROW_R10X, ROW_RANDOM,
-                                ROW_RX, ROW_ZERO, T, rollout)
+from mjx_envs import model as model_lib
+from mjx_envs import observation as obs_lib
+from mjx_envs.physics.backends import import_mjx
+from tests.env_fixtures import (
+    ROW_COLLIDE,
+    ROW_LX,
+    ROW_LY,
+    ROW_LZ,
+    ROW_R10X,
+    ROW_RANDOM,
+    ROW_RX,
+    ROW_ZERO,
+    B,
+    T,
+    rollout,
+)
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENGINES = ["c", "mjx"]
 # Engine parity tolerance on every observation entry of a 50-step reach episode (measured max
 # 3.8 mm on positions, 5.4 mm on velocities*dt; see
@@ -51,7 +69,7 @@ def test_forward_kinematics_matches_dh(physics, c_env):
             sites.append([d.site("l_grip").xpos.copy(), d.site("r_grip").xpos.copy()])
         sites = np.array(sites)
     else:
-        from mujoco import mjx
+        mjx = import_mjx()
         mm = mjx.put_model(m)
         d0 = mjx.make_data(mm)
 
@@ -165,6 +183,12 @@ def test_compute_reward_shapes_threshold_and_both(c_env):
     assert float(env.success(edge, g)) == 0.0  # one arm in is not success
     info = {"arm_contact_penalty": jnp.array([-0.5, -0.5])}
     np.testing.assert_array_equal(env.compute_reward(inside, g, info), [-0.5, -0.5])
+    # the Gymnasium/HER convention: an empty info, or one without a term, adds nothing
+    for no_pen in (None, {}, {"step": jnp.int32(3)}):
+        np.testing.assert_array_equal(env.compute_reward(edge, g, no_pen), [-1.0, 0.0])
+    batch = jnp.broadcast_to(edge, (4, 2, 3))
+    np.testing.assert_array_equal(env.compute_reward(batch, jnp.zeros((4, 2, 3)), {}),
+                                  np.tile([-1.0, 0.0], (4, 1)))
     team = mjx_envs.make("reach", physics="c", team_scale=0.5)
     np.testing.assert_array_equal(team.compute_reward(edge, g), [-1.5, -0.5])
     assert team.reward_range == (-1.5, 0.0)
@@ -186,7 +210,7 @@ def test_reset_determinism(physics):
     r = rollout(physics)
     s1 = r.vreset(r.keys)
     s2 = r.vreset(r.keys)
-    for a, b in zip(jax.tree.leaves(s1), jax.tree.leaves(s2)):
+    for a, b in zip(jax.tree.leaves(s1), jax.tree.leaves(s2), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     goals = np.asarray(s1.obs["desired_goal"])
     assert len({g.tobytes() for g in goals}) == B
@@ -225,3 +249,28 @@ def test_segment_distance_reference():
         brute = np.min(np.linalg.norm(a[:, None] - b[None], axis=-1))
         got = float(obs_lib.segment_distance(np, p1, q1, p2, q2))
         assert got <= brute + 1e-9 and brute - got < 5e-3
+
+
+# -- scenes and imports -------------------------------------------------------------------------
+
+def test_scenes_load_from_the_package_assets():
+    assert {"scene_reach.xml", "scene_push.xml", "scene_pickup.xml",
+            "scene_pot.xml"} <= set(model_lib.scenes())
+    with model_lib.scene_path("scene_reach.xml") as p:
+        assert p.is_file() and p.parent.name == "assets"
+    m = model_lib.load_model("scene_push.xml", timestep=0.005, cone="elliptic")
+    assert m.opt.timestep == 0.005 and m.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    with pytest.raises(FileNotFoundError, match="no_such_scene.xml"):
+        model_lib.load_model("no_such_scene.xml")
+    with pytest.raises(ValueError, match="cone"):
+        model_lib.load_model("scene_reach.xml", cone="round")
+
+
+def test_mjx_backend_import_prints_no_warp_noise():
+    code = ("import mjx_envs\n"
+            "env = mjx_envs.make('reach', physics='mjx')\n"
+            "assert env.backend.name == 'mjx'\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "warp" not in (out.stdout + out.stderr).lower(), out.stdout + out.stderr

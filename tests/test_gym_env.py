@@ -1,6 +1,7 @@
 """Gymnasium adapter (mjx_envs/gym_env.py): env checker, spaces, reward = compute_reward (also
 batched, as HER calls it), 50-step truncation, seeding, registration, no JAX import, and the
-same dynamics as the trainer's C-engine env."""
+same dynamics, rules and rewards as the trainer's C-engine env (the NumPy simulator it wraps,
+mjx_envs.numpy_env, for every task)."""
 
 import dataclasses
 import os
@@ -15,6 +16,7 @@ gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import mjx_envs.gym_env as ge  # noqa: E402
+from mjx_envs.numpy_env import NumpyDualArmEnv  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TASKS = ("reach", "push", "pickup", "pot")
@@ -102,16 +104,82 @@ def test_imports_no_jax():
 
 
 @pytest.mark.parametrize("task", TASKS)
-def test_settings_equal_the_jax_tasks(task):
-    import mjx_envs
+def test_numpy_sim_agrees_with_the_jax_c_engine_env(task):
+    """The NumPy simulator (what the adapter wraps) and the trainer's C-engine env: the same
+    reset for the same draws (rules), then the same observations (float32 rounding), achieved
+    goals, success and per-arm rewards (every term on) over a few random actions."""
+    import jax
+    import jax.numpy as jnp
 
-    cfg = dataclasses.asdict(mjx_envs.default_config(task))
-    s = ge.TASK_SETTINGS[task]
-    for k, v in cfg.items():
-        if isinstance(v, (str, bool)):
-            assert s[k] == v, k
-        else:
-            np.testing.assert_allclose(np.asarray(s[k], float), np.asarray(v, float), err_msg=k)
+    import mjx_envs
+    from mjx_envs.core import SAMPLER
+    from tests.env_fixtures import RecordingSampler, ReplaySampler
+
+    terms = dict(team_scale=0.5, arm_contact_penalty=0.25)
+    jenv = mjx_envs.make(task, physics="c", **terms)
+    sim = NumpyDualArmEnv(terms, task=task)
+    assert sim.config == jenv.config
+    key = jax.random.PRNGKey(4)
+    st = jax.jit(jenv.reset)(key)
+    rec = RecordingSampler(SAMPLER)
+    jenv.rules.reset(jnp, rec, key)
+    goal, qpos = sim.rules.reset(np, ReplaySampler(rec.draws), None)
+    np.testing.assert_allclose(goal, np.asarray(st.obs["desired_goal"]), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(qpos, np.asarray(st.data.qpos), rtol=0, atol=1e-6)
+    res = sim.reset(goal=np.asarray(st.obs["desired_goal"]), qpos=np.asarray(st.data.qpos))
+    np.testing.assert_allclose(res.observation, np.asarray(st.obs["observation"]), atol=1e-5)
+    step = jax.jit(jenv.step)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        a = rng.uniform(-1.2, 1.2, 8).astype(np.float32)
+        st, res = step(st, a), sim.step(a)
+        np.testing.assert_allclose(res.observation, np.asarray(st.obs["observation"]), atol=1e-5)
+        np.testing.assert_allclose(res.achieved_goal, np.asarray(st.obs["achieved_goal"]),
+                                   atol=1e-5)
+        assert res.success == bool(st.metrics["success"])
+        contact, info = sim.info_terms(res.arm_clearance)
+        assert contact == float(st.metrics["arm_contact"])
+        np.testing.assert_array_equal(
+            sim.compute_reward(res.achieved_goal, res.desired_goal, info), np.asarray(st.reward))
+
+
+def test_compute_reward_with_empty_or_partial_info():
+    env = ge.DualUR3GoalEnv("reach", arm_contact_penalty=0.5)
+    ag = np.zeros((3, 6), np.float32)
+    dg = ag.copy()
+    dg[0, 0] = 1.0  # left arm of transition 0 misses its goal
+    pen = {"arm_contact_penalty": np.full(2, -0.5, np.float32)}
+    base = env.compute_reward(ag, dg, None)
+    np.testing.assert_array_equal(base, [-1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(env.compute_reward(ag, dg, {}), base)
+    np.testing.assert_array_equal(env.compute_reward(ag[0], dg[0], {}), -1.0)
+    np.testing.assert_array_equal(env.compute_reward(ag[0], dg[0], {"step": 3}), -1.0)
+    # a term missing from some of the dicts counts as 0 for those transitions
+    np.testing.assert_array_equal(env.compute_reward(ag, dg, [pen, {}, {"step": 1}]),
+                                  [-2.0, 0.0, 0.0])
+    np.testing.assert_array_equal(env.compute_reward(ag, dg, pen), [-2.0, -1.0, -1.0])
+
+
+def test_settings_come_from_mjx_envs_settings():
+    from mjx_envs import settings
+
+    for task in TASKS:
+        assert ge.task_config(task) == settings.default_config(task)
+        assert ge.task_settings(task) == dataclasses.asdict(settings.default_config(task))
+    s = ge.task_settings("push", max_delta=0.03)
+    assert s["max_delta"] == 0.03 and s["target_radius"] == (0.06, 0.08)
+    env = ge.DualUR3GoalEnv("pot", episode_length=20)
+    assert env.episode_length == 20 and env.sim.config.scene == "scene_pot.xml"
+    # the NumPy simulator: a dict (e.g. a policy export's env settings: lists, derived keys such
+    # as dt) or a config overrides the task's settings
+    sim = NumpyDualArmEnv({"max_delta": 0.02, "dt": 0.04,
+                           "goal_low": [[0.2, -0.08, 0.43], [0.2, -0.3, 0.43]]})
+    assert sim.config.max_delta == 0.02 and sim.config.goal_low[0] == (0.2, -0.08, 0.43)
+    assert NumpyDualArmEnv(settings.task_config("pickup"), task="pickup").rules.has_object
+    with pytest.raises(ValueError, match="object joint"):
+        NumpyDualArmEnv({"scene": "scene_reach.xml"}, task="push")
+    with pytest.raises(ValueError, match="unknown task"):
+        NumpyDualArmEnv(task="juggle")
 
 
 @pytest.mark.parametrize("task", ["push", "pickup"])
@@ -127,7 +195,8 @@ def test_same_trajectory_as_the_trainers_c_engine_env(task):
     env = ge.DualUR3GoalEnv(task)
     o, _ = env.reset(options=dict(qpos=np.asarray(st.data.qpos),
                                   goal=np.asarray(st.obs["desired_goal"])))
-    np.testing.assert_allclose(o["observation"], np.asarray(st.obs["observation"]).ravel(), atol=1e-5)
+    np.testing.assert_allclose(o["observation"], np.asarray(st.obs["observation"]).ravel(),
+                               atol=1e-5)
     step = jax.jit(jenv.step)
     rng = np.random.default_rng(2)
     for _ in range(8):

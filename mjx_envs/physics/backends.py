@@ -26,9 +26,13 @@ Facts the C backend handles (mujoco 4.0.0):
 from __future__ import annotations
 
 import atexit
+import contextlib
+import io
+import logging
 import os
+import re
+import sys
 import threading
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -45,12 +49,34 @@ def default_physics() -> str:
 # --------------------------------------------------------------------------------- MJX -----
 
 
+_WARP_NOISE = re.compile(r"^Failed to import (mujoco_)?warp\b")
+
+
+def import_mjx():
+    """``mujoco.mjx``, imported without the "Failed to import warp" / "Failed to import
+    mujoco_warp" lines that mujoco 4.0's MJX prints when the optional Warp backend is not
+    installed (it is not used here). Only those lines are held back (logged at debug level);
+    anything else printed during the import passes through."""
+    if "mujoco.mjx" in sys.modules:
+        return sys.modules["mujoco.mjx"]
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf):
+            from mujoco import mjx
+    finally:
+        for line in buf.getvalue().splitlines():
+            if _WARP_NOISE.match(line):
+                logging.getLogger(__name__).debug("%s", line)
+            else:
+                print(line)
+    return mjx
+
+
 class MjxBackend:
     name = "mjx"
 
     def __init__(self, model: mujoco.MjModel, n_substeps: int):
-        from mujoco import mjx
-
+        mjx = import_mjx()
         self._mjx = mjx
         self.mj_model = model
         self.n_substeps = int(n_substeps)
@@ -164,20 +190,6 @@ class CBackend:
 
     # -- host functions (NumPy, run inside pure_callback) -------------------------------------
 
-    def _pack(self, time, qpos, qvel, act):
-        n = qpos.shape[0]
-        s = np.zeros((n, self.nstate), np.float64)
-        for name, arr in (("mjSTATE_TIME", time[:, None]), ("mjSTATE_QPOS", qpos),
-                          ("mjSTATE_QVEL", qvel), ("mjSTATE_ACT", act)):
-            i, k = self._off[name]
-            if k:
-                s[:, i : i + k] = arr
-        return s
-
-    def _unpack(self, s, name):
-        i, k = self._off[name]
-        return s[:, i : i + k]
-
     def _host_forward(self, qpos, qvel, mocap_pos):
         lead = qpos.shape[:-1]
         qpos = np.asarray(qpos, np.float64).reshape(-1, self.nq)
@@ -215,7 +227,7 @@ class CBackend:
         n = int(np.prod(lead)) if lead else 1
         time = np.asarray(time, np.float64).reshape(n)
         # full-physics state: time, qpos, qvel, act (other components have size 0 here; any
-        # that did not would stay zero as in _pack)
+        # that did not would stay zero)
         state = np.zeros((n, self.nstate), np.float64)
         state[:, self._i_time] = time
         state[:, self._sl_qpos] = np.asarray(qpos).reshape(n, self.nq)
