@@ -40,27 +40,10 @@ from mjx_envs import observation as obs_lib
 from mjx_envs import rules
 from mjx_envs import settings as settings_lib
 from mjx_envs.model import home_state, load_model
-from mjx_envs.schema import fields
 
 NUM_ARMS = 2
 SUPPORTED_TASKS = settings_lib.TASKS
 SAMPLER = rules.NumpySampler()
-
-
-def resolve_config(task: str, overrides=None) -> settings_lib.TaskConfig:
-    """The task's settings, with ``overrides`` (a dict or a full config) applied."""
-    settings_lib.check_task(task)
-    if overrides is None:
-        return settings_lib.default_config(task)
-    base = settings_lib.default_config(task)
-    if isinstance(overrides, settings_lib.TaskConfig):
-        if not isinstance(overrides, type(base)):
-            raise TypeError(f"task {task!r} needs a {type(base).__name__}, got "
-                            f"{type(overrides).__name__}")
-        return overrides
-    names = fields(base)
-    return settings_lib.replace_config(
-        base, **{k: v for k, v in dict(overrides).items() if k in names})
 
 
 @dataclass
@@ -83,7 +66,7 @@ class NumpyDualArmEnv:
 
     def __init__(self, settings: Mapping[str, Any] | settings_lib.TaskConfig | None = None,
                  task: str = "reach", exact: bool = True):
-        self.config = cfg = resolve_config(task, settings)
+        self.config = cfg = settings_lib.saved_config(task, settings)
         self.settings = dataclasses.asdict(cfg)
         self.task = task
         self.exact = bool(exact)

@@ -163,6 +163,22 @@ def task_config(task: str, **overrides) -> TaskConfig:
     return replace_config(default_config(task), **overrides)
 
 
+def saved_config(task: str, saved=None) -> TaskConfig:
+    """The task's settings holding the values in `saved`: a dict (e.g. a policy export's env
+    settings; keys that are not fields, such as ``dt``, are ignored; fields it lacks keep the
+    task's values) or a whole config of the task's class (returned as is)."""
+    base = default_config(task)
+    if saved is None:
+        return base
+    if isinstance(saved, TaskConfig):
+        if not isinstance(saved, type(base)):
+            raise TypeError(f"task {task!r} needs a {type(base).__name__}, got "
+                            f"{type(saved).__name__}")
+        return saved
+    names = fields(base)
+    return replace_config(base, **{k: v for k, v in dict(saved).items() if k in names})
+
+
 def config_from_dict(task: str, d: dict) -> TaskConfig:
     """The task's config class filled from a JSON dict (e.g. a policy export's settings)."""
     return from_dict(type(default_config(task)), d)

@@ -29,8 +29,22 @@ def _rows(run_dir):
 
 
 def _learning_columns(rows):
-    skip = {"wall_time", "env_steps_per_s", "updates_per_s"}
+    skip = {"wall_time", "env_steps_per_s", "updates_per_s", "rollout_time", "update_time",
+            "eval_time"}
     return [{k: v for k, v in r.items() if k not in skip} for r in rows]
+
+
+def test_epoch_time_is_split_into_rollout_update_and_evaluation(env, tmp_path):
+    run = str(tmp_path / "t")
+    train(TINY.replace(n_epochs=2), run, env=env, plot=False)
+    rows = _rows(run)
+    for r in rows:
+        roll, upd, ev = (float(r[k]) for k in ("rollout_time", "update_time", "eval_time"))
+        assert roll > 0 and upd > 0 and ev > 0
+        epoch_s = float(r["env_steps"]) / float(r["epoch"]) / float(r["env_steps_per_s"])
+        assert roll + upd <= epoch_s * 1.001 + 1e-3
+    # the first epoch's rollout time holds the compilation
+    assert float(rows[0]["rollout_time"]) > float(rows[1]["rollout_time"])
 
 
 def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):

@@ -34,6 +34,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from daddpg_jax.algo import acting, replay, variants
@@ -94,7 +95,8 @@ class _Setup(NamedTuple):
 
 def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
                    update_progress: Callable | None = None, update_tick: int = 0,
-                   demo_policy: Callable | None = None) -> TrainFns:
+                   demo_policy: Callable | None = None,
+                   clock: Callable | None = None) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
@@ -105,13 +107,17 @@ def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
     demo_policy: with cfg.n_demos > 0, the controller that plays the demonstrations, a pure
     function of the env's observation dict -> joint action [..., 8]; default: the task's
     scripted controller (mjx_envs.tasks.scripted) at the env's max_delta.
+    clock: optional host function `clock(stage)` called when a cycle's rollout is done
+    (stage ROLLOUT_DONE) and when its updates are done (UPDATES_DONE), for a split of the
+    epoch's time (`StageClock`); one device only (ignored with several).
     """
     sp = _setup(env, cfg, demo_policy)
     act, rollout = _acting_fns(sp)
     update_normalizers = _normalizer_update(sp)
     init = _init_fn(sp, update_normalizers)
     cycle = _cycle_fn(sp, rollout, update_normalizers,
-                      _updates_fn(sp, update_progress, update_tick))
+                      _updates_fn(sp, update_progress, update_tick),
+                      clock if sp.mesh is None else None)
     state_shardings = None
     if sp.mesh is not None:
         cycle, state_shardings = _sharded_cycle(sp, cycle, init)
@@ -325,7 +331,25 @@ def _rollout_metrics(episodes, tr):
                 episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
 
 
-def _cycle_fn(sp: _Setup, rollout, update_normalizers, updates):
+ROLLOUT_DONE, UPDATES_DONE = 0, 1
+"""stages reported to `make_train_fns`'s clock"""
+
+
+def _mark(clock: Callable | None, stage: int, after, key):
+    """`key` unchanged, but only available once the host `clock(stage)` has run, which runs once
+    `after` is computed: stage marks in program order (xor with the callback's zero)."""
+    if clock is None:
+        return key
+
+    def cb(_):
+        clock(stage)
+        return np.zeros(key.shape, key.dtype)
+
+    zero = jax.pure_callback(cb, jax.ShapeDtypeStruct(key.shape, key.dtype), after)
+    return key ^ zero
+
+
+def _cycle_fn(sp: _Setup, rollout, update_normalizers, updates, clock: Callable | None = None):
     cfg = sp.cfg
 
     def cycle_body(state: TrainState, axis=None):
@@ -336,11 +360,14 @@ def _cycle_fn(sp: _Setup, rollout, update_normalizers, updates):
             dev = jax.lax.axis_index(axis)
             k_roll, k_norm, k_upd = (jax.random.fold_in(k, dev) for k in (k_roll, k_norm, k_upd))
         episodes, tr = rollout(state, k_roll, sp.n_envs_local, explore=True)
+        k_upd = _mark(clock, ROLLOUT_DONE, episodes.obs[0, -1, 0, 0], k_upd)
         buf = replay.insert(state.buffer, episodes)
         obs_norm, goal_norm = update_normalizers(state.obs_norm, state.goal_norm, k_norm,
                                                  episodes, axis)
         state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
         a_state, um = updates(state, k_upd, axis)
+        key = _mark(clock, UPDATES_DONE, jax.tree.leaves(a_state.target_critic)[0].ravel()[0],
+                    key)
         nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"]))
                       & jnp.all(jnp.isfinite(um["actor_loss"])))
         state = state.replace(agent=a_state, key=key, cycles=state.cycles + 1,
@@ -409,3 +436,29 @@ def _init_wrapper(init_fn, cfg, shardings=None):
             key = jax.random.PRNGKey(cfg.seed)
         return init_jit(key)
     return init
+
+
+class StageClock:
+    """Host clock for `make_train_fns(clock=...)`: splits each epoch's time into rollout time
+    (from the previous mark, or `start()`, to a cycle's rollout done) and update time (buffer
+    insert, normalizer update and the gradient updates: rollout done to updates done)."""
+
+    def __init__(self):
+        self.start()
+
+    def start(self):
+        """Call right before `train_epoch`; resets the sums."""
+        import time
+
+        self._now = time.perf_counter
+        self.last = self._now()
+        self.rollout_s = 0.0
+        self.update_s = 0.0
+
+    def __call__(self, stage: int):
+        now = self._now()
+        if int(stage) == ROLLOUT_DONE:
+            self.rollout_s += now - self.last
+        else:
+            self.update_s += now - self.last
+        self.last = now

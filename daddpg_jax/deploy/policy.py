@@ -43,10 +43,7 @@ def task_settings(task: str, saved: Mapping[str, Any] | None = None):
     that ``saved`` lacks (an export written before the field existed) keep the values of
     ``mjx_envs.settings.default_config(task)``. Raises ValueError for an unknown task or a value
     outside its field's range."""
-    cfg = task_settings_lib.default_config(task)
-    names = schema.fields(cfg)
-    return task_settings_lib.replace_config(
-        cfg, **{k: v for k, v in (saved or {}).items() if k in names})
+    return task_settings_lib.saved_config(task, saved or {})
 
 
 def env_settings(task: str, saved: Mapping[str, Any] | None = None) -> dict[str, Any]:

@@ -32,11 +32,14 @@ METRIC_COLUMNS = (
     "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
     "test_final_distance_left", "test_final_distance_right", "train_success_rate",
     "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
-    "updates_per_s", "bc_loss", "q_filter_pass",
+    "updates_per_s", "bc_loss", "q_filter_pass", "rollout_time", "update_time", "eval_time",
 )
 """Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
-rate, mean over the epoch's updates and the agents) are NaN without demonstrations; CSVs written
-before they existed lack them and are rewritten with them (blank) on --resume."""
+rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
+rollout_time, update_time and eval_time split the epoch's seconds: the rollouts, the updates
+(with buffer insert and normalizer update), and the evaluation after the epoch (rollout and
+update times are NaN on several devices). CSVs written before a column existed lack it and are
+rewritten with it (blank) on --resume."""
 
 
 class NonFiniteLoss(RuntimeError):
@@ -104,10 +107,13 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     metrics_path = os.path.join(run_dir, "metrics.csv")
     env = env if env is not None else make_env(cfg, env_overrides)
 
-    from daddpg_jax.algo.train import make_train_fns
+    from daddpg_jax.algo.train import StageClock, make_train_fns
 
+    clock = StageClock()
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
-                         update_tick=update_tick, demo_policy=demo_policy)
+                         update_tick=update_tick, demo_policy=demo_policy, clock=clock)
+    if fns.num_devices > 1:
+        clock = None
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     rows, start_epoch, wall_offset = [], 0, 0.0
     if resume:
@@ -125,6 +131,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     epoch = start_epoch
     while epoch < cfg.n_epochs:
         t0 = time.perf_counter()
+        if clock is not None:
+            clock.start()
         state, m = fns.train_epoch(state)
         m = jax.device_get(m)
         dt = time.perf_counter() - t0
@@ -133,9 +141,13 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                 f"non-finite loss in epoch {epoch + 1}; stopping. The last good checkpoint "
                 f"(epoch {ckpt.latest_step(run_dir)}) is kept in {ckpt.checkpoint_dir(run_dir)}.")
         epoch += 1
+        t_ev = time.perf_counter()
         ev = jax.device_get(fns.evaluate(state))
         row = _epoch_row(cfg, env, epoch, fns.env_steps(state), int(state.updates),
                          round(wall_offset + time.perf_counter() - t_start, 3), ev, m, dt)
+        row.update(rollout_time=clock.rollout_s if clock else math.nan,
+                   update_time=clock.update_s if clock else math.nan,
+                   eval_time=time.perf_counter() - t_ev)
         _append_row(metrics_path, row)
         ckpt.save(run_dir, state, epoch, save_buffer=cfg.save_buffer, keep=cfg.keep_checkpoints)
         rows.append(row)
