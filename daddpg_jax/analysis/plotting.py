@@ -166,9 +166,9 @@ def plot_runs(groups: dict[str, Sequence[Sequence[dict]]], out: str, title: str 
         ax.set_ylabel(yl)
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
+    several = any(len(r) > 1 for r in groups.values())
     axes[0].legend(loc="lower right", fontsize=8,
-                   title=f"mean, band {band_name}" if any(len(r) > 1 for r in groups.values()) else None,
-                   title_fontsize=8)
+                   title=f"mean, band {band_name}" if several else None, title_fontsize=8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

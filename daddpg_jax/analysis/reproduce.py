@@ -143,7 +143,8 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Sequence[str] | None
                     f"over {seeds} seed(s)")
     if len(groups) > 1:
         plot_runs(groups, os.path.join(task_dir, "ablations.png"), title=f"{task}: variants")
-    summary = {"task": task, "seeds": seeds, "first_seed": first_seed, "ablations": ablations, "env_steps": env_steps,
+    summary = {"task": task, "seeds": seeds, "first_seed": first_seed, "ablations": ablations,
+               "env_steps": env_steps,
                "budget_minutes": budget_minutes, "num_envs": num_envs,
                "overrides": overrides or {}, "env_overrides": env_overrides or {},
                "elapsed_s": round(time.time() - t0, 1), "final": finals}

@@ -189,7 +189,8 @@ def run_sb3(args) -> dict:
                        updates=int(model._n_updates))
             curve.append(row)
             print(f"[sb3] env_steps {row['env_steps']:>7,}  wall {train_time:7.1f} s  "
-                  f"test_success {m['test_success_rate']:.3f}  updates {row['updates']}", flush=True)
+                  f"test_success {m['test_success_rate']:.3f}  updates {row['updates']}",
+                  flush=True)
             if not args.no_stop_at_target and reaches(m["test_success_rate"], args.target):
                 return False
             return train_time < args.time_budget
@@ -257,12 +258,13 @@ def summarize(res: dict, target: float) -> dict:
         best_at_wall=best["wall_time"] if best else None,
         total_env_steps=last["env_steps"] if last else 0,
         total_wall=last["wall_time"] if last else 0.0,
-        env_steps_per_s=(last["env_steps"] / last["wall_time"]) if last and last["wall_time"] else None)
+        env_steps_per_s=((last["env_steps"] / last["wall_time"])
+                         if last and last["wall_time"] else None))
 
 
 def table(summaries: list, target: float) -> str:
-    lines = [f"| method | wall clock to {target:g} (s) | env steps to {target:g} | best test success "
-             "(at env steps, s) | trained env steps / wall (s) | env steps/s |",
+    lines = [f"| method | wall clock to {target:g} (s) | env steps to {target:g} | "
+             "best test success (at env steps, s) | trained env steps / wall (s) | env steps/s |",
              "|---|---:|---:|---:|---:|---:|"]
     for s in summaries:
         w = f"{s['wall_to_target']:.1f}" if s["reached"] else "not reached"
@@ -277,8 +279,9 @@ def table(summaries: list, target: float) -> str:
         lines.append("")
         for s in summaries:
             if s is not ref and s["reached"]:
-                lines.append(f"- {s['method']}: {ref['wall_to_target'] / s['wall_to_target']:.1f}x "
-                             f"less wall clock and {ref['env_steps_to_target'] / s['env_steps_to_target']:.1f}x "
+                wall = ref["wall_to_target"] / s["wall_to_target"]
+                steps = ref["env_steps_to_target"] / s["env_steps_to_target"]
+                lines.append(f"- {s['method']}: {wall:.1f}x less wall clock and {steps:.1f}x "
                              f"fewer env steps to {target:g} than SB3")
     return "\n".join(lines)
 
@@ -298,7 +301,8 @@ def build_parser():
                    help="keep training until the time budget even after reaching --target")
     p.add_argument("--eval-episodes", type=int, default=100, help="fixed evaluation episodes (100)")
     p.add_argument("--eval-every", type=int, default=2000,
-                   help="SB3: env steps between evaluations (default 2000 = one epoch of ours on reach)")
+                   help="SB3: env steps between evaluations (default 2000 = one epoch of ours "
+                        "on reach)")
     p.add_argument("--eval-seed", type=int, default=12345, help="seed of the evaluation episodes")
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--sb3-gradient-steps", type=int, default=20,
@@ -326,7 +330,7 @@ def main(argv=None) -> int:
     os.makedirs(args.out, exist_ok=True)
     if args.worker:
         res = run_sb3(args) if args.worker == "sb3" else run_ours(args, args.worker)
-        res["threads"] = ("torch intra-op threads %d" % args.torch_threads if args.worker == "sb3"
+        res["threads"] = (f"torch intra-op threads {args.torch_threads}" if args.worker == "sb3"
                           else "XLA_FLAGS=" + os.environ.get("XLA_FLAGS", "(unset)"))
         with open(os.path.join(args.out, f"result_{args.worker}.json"), "w") as f:
             json.dump(res, f, indent=2)

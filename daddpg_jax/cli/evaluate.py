@@ -2,7 +2,7 @@
 distance per arm, over N deterministic episodes from fixed seeds; optionally a video.
 
 Examples
-  python experiments/evaluate.py runs/reach_s0                      # latest checkpoint, 100 episodes
+  python experiments/evaluate.py runs/reach_s0                # latest checkpoint, 100 episodes
   python experiments/evaluate.py runs/reach_s0 --step 2 --episodes 500 --seed 7 --json
   MUJOCO_GL=egl python experiments/evaluate.py runs/reach_s0 --video reach.mp4
 
@@ -35,7 +35,8 @@ def build_parser():
                    help="physics engine (default: the run's)")
     p.add_argument("--video", metavar="OUT.mp4", default=None,
                    help="render the first --video-episodes episodes one after another")
-    p.add_argument("--video-episodes", type=int, default=3, help="episodes in the video (default 3)")
+    p.add_argument("--video-episodes", type=int, default=3,
+                   help="episodes in the video (default 3)")
     p.add_argument("--width", type=int, default=480, help="video width (default 480)")
     p.add_argument("--height", type=int, default=360, help="video height (default 360)")
     p.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",

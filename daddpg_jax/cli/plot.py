@@ -4,7 +4,8 @@ and the arm-contact rate, as three panels (PNG).
 Examples
   python experiments/plot.py runs/reach_s0 --out reach.png
   python experiments/plot.py runs/reach_daddpg_s{0,1,2} runs/reach_single_s{0,1,2} --out cmp.png
-  python experiments/plot.py runs/a runs/b runs/c --labels daddpg daddpg single --band std --out x.png
+  python experiments/plot.py runs/a runs/b runs/c --labels daddpg daddpg single --band std \
+      --out x.png
 
 Runs that share a label form one group (e.g. seeds): the plot shows the group's mean and a band
 (min-max over its runs by default, or mean +- one std with --band std). Runs are aligned by
@@ -38,7 +39,8 @@ def _table_row(run: str, label: str, rows: list, cfg: dict) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run directories (or metrics.csv files)")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR",
+                   help="run directories (or metrics.csv files)")
     p.add_argument("--out", required=True, metavar="FILE.png", help="output image")
     p.add_argument("--labels", nargs="+", default=None,
                    help="one label per RUN_DIR; runs with the same label are one group")
@@ -97,7 +99,8 @@ def main(argv=None) -> int:
         print(f"wrote {os.path.abspath(args.table)}")
     for label, runs in groups.items():
         last = [float(r[-1]["test_success_rate"]) for r in runs]
-        print(f"{label}: {len(runs)} run(s), final test success {', '.join(f'{v:.2f}' for v in last)}")
+        finals = ", ".join(f"{v:.2f}" for v in last)
+        print(f"{label}: {len(runs)} run(s), final test success {finals}")
     print(f"wrote {os.path.abspath(out)}")
     return 0
 

@@ -2,7 +2,7 @@
 
     python experiments/scripted_demo.py --task pickup --episodes 8
     MUJOCO_GL=egl python experiments/scripted_demo.py --task pot --video pot.mp4
-    python experiments/scripted_demo.py --task pot --policy zero --episodes 100   # do-nothing baseline
+    python experiments/scripted_demo.py --task pot --policy zero --episodes 100  # do nothing
 
 ``--policy zero`` sends all-zero actions instead (the arms hold still, fingers half open): the
 success rate and goal distance of leaving the object where it lies, the baseline that a trained
@@ -40,7 +40,6 @@ def main(argv=None) -> int:
     if args.episodes < 1:
         p.error("--episodes must be >= 1")
 
-    import dataclasses
 
     import jax
     import jax.numpy as jnp
