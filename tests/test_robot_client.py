@@ -1,11 +1,14 @@
-"""Robot side: NumPy env vs the trainer's env, safety limits, real-robot conventions, and the
-client loop against a served policy (fast end-to-end; slow: trained reach vs trainer eval)."""
+"""Robot side: NumPy env vs the trainer's env, safety limits, real-robot conventions, the
+client loop against a served policy (fast end-to-end; slow: trained reach vs trainer eval), and
+the client's outage handling (counting logic; a service killed or frozen mid-run)."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import re
+import signal
 import socket
 import subprocess
 import sys
@@ -319,6 +322,8 @@ def test_robot_client_cli(tiny_served, tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(out_json.read_text())
     assert res["episodes"] == 2 and res["task"] == "reach" and res["stops"] == 0
+    assert res["excluded_episodes"] == 0 and res["aborted"] is None and res["outages"] == 0
+    assert "outage" not in r.stderr
     r = client("--episodes", "1", "--deadline-ms", "2000")  # the task from GET /info
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["task"] == "reach"
@@ -362,6 +367,194 @@ def test_stop_when_service_is_down_late_or_malformed(settings):
     out = robot.run_episode(env, _StubClient([1.0, 0, 0, 0] * 2), safety, goal=np.zeros((2, 3)))
     assert out["stops"] == 0
     assert np.all(env._result().achieved_goal[:, 0] > home[:, 0] + 0.05)
+
+
+# -- outages of the policy service ------------------------------------------------------------
+
+class _FakeClock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_outage_monitor_counts_and_limits():
+    clock, lines = _FakeClock(), []
+    m = robot.OutageMonitor(max_missed=3, max_outage_s=10.0, report=lines.append, clock=clock)
+    m.answered()
+    for _ in range(2):  # a short outage: one line when it starts, one when it ends
+        m.missed_deadline("down", sent_at=clock.t, where="episode 1, step 1")
+        clock.t += 0.04
+    m.answered()
+    assert len(lines) == 2 and lines[0].startswith("policy service outage at episode 1, step 1")
+    assert "answering again after 2 missed" in lines[1]
+    assert (m.outages, m.total_missed, m.missed) == (1, 2, 0)
+    m.missed_deadline("down", sent_at=clock.t)
+    m.missed_deadline("down")
+    with pytest.raises(robot.ServiceOutage, match="3 consecutive missed deadlines") as e:
+        m.missed_deadline("refused")  # the count limit
+    assert e.value.missed == 3 and e.value.last_error == "refused"
+    assert len(lines) == 3 and m.outages == 2
+    # the time limit, from when the first failed request was sent
+    clock, lines = _FakeClock(), []
+    m = robot.OutageMonitor(max_missed=1000, max_outage_s=1.0, report=lines.append, clock=clock)
+    start = clock.t
+    clock.t += 0.25
+    m.missed_deadline("timeout", sent_at=start)
+    for _ in range(2):
+        clock.t += 0.25
+        m.missed_deadline("timeout")
+    clock.t += 0.25
+    with pytest.raises(robot.ServiceOutage) as e:
+        m.missed_deadline("timeout")
+    assert e.value.outage_s == pytest.approx(1.0) and e.value.missed == 4 and len(lines) == 1
+    # limits off: never gives up; silent without a report callable
+    m = robot.OutageMonitor(max_missed=0, max_outage_s=None, clock=clock)
+    for _ in range(500):
+        clock.t += 1.0
+        m.missed_deadline("down")
+    assert m.total_missed == 500 and m.limits_text() == "none"
+
+
+def _ep(stops, success, dist=0.1):
+    return dict(success=success, final_distance=[dist, dist], stops=stops, errors=["x"] * stops,
+                min_arm_clearance=0.05, rtt_ms_p50=1.0, rtt_ms_max=2.0)
+
+
+def test_summary_excludes_episodes_with_missed_deadlines():
+    eps = [_ep(0, True), _ep(3, True), _ep(0, False, 0.3), _ep(50, True), _ep(0, True)]
+    s = robot.summarize_episodes(eps)
+    assert (s["episodes"], s["episodes_run"], s["excluded_episodes"]) == (3, 5, 2)
+    assert s["success_rate"] == pytest.approx(2 / 3)  # not 4/5: excluded successes don't count
+    assert s["mean_final_distance"] == pytest.approx((0.1 + 0.3 + 0.1) / 3)
+    assert s["stops"] == 53 and s["aborted"] is None
+    s = robot.summarize_episodes([_ep(1, True)], aborted={"episode": 1})
+    assert s["episodes"] == 0 and s["success_rate"] is None and s["mean_final_distance"] is None
+    assert s["excluded_episodes"] == 1
+
+
+class _FlakyClient:
+    """Answers a fixed action, except on the calls in ``down`` (0-based) or from ``dead_from``."""
+
+    def __init__(self, down=(), dead_from=None):
+        self.down, self.dead_from, self.calls = set(down), dead_from, 0
+
+    def act(self, observation, desired_goal):
+        k, self.calls = self.calls, self.calls + 1
+        if k in self.down or (self.dead_from is not None and k >= self.dead_from):
+            return None, {"error": "ConnectionRefusedError: down"}
+        return [0.1, 0.0, 0.0, 0.0] * 2, {}
+
+
+def test_run_episodes_excludes_outage_episodes_and_aborts(settings):
+    env = NumpyDualArmEnv(settings)
+    L = env.episode_length
+    lines = []
+    safety = SafetyFilter(SafetyLimits.from_env(settings, deadline_s=5.0))
+    # a short outage in episode 2: reported once, episode 2 excluded, the run goes on
+    mon = robot.OutageMonitor(max_missed=10, report=lines.append)
+    out = robot.run_episodes(env, _FlakyClient(down=range(L + 5, L + 9)), safety, 3, monitor=mon)
+    assert out["aborted"] is None and out["outages"] == 1 and out["stops"] == 4
+    assert (out["episodes"], out["episodes_run"], out["excluded_episodes"]) == (2, 3, 1)
+    assert len(lines) == 2 and "episode 2, step 6" in lines[0]
+    # the service dies in episode 3: abort after 10 missed deadlines, in episode 4
+    lines.clear()
+    mon = robot.OutageMonitor(max_missed=10, report=lines.append)
+    client = _FlakyClient(dead_from=3 * L - 4)
+    out = robot.run_episodes(env, client, safety, 400, monitor=mon)
+    assert out["aborted"]["episode"] == 4 and out["aborted"]["missed"] == 10
+    assert (out["episodes"], out["episodes_run"], out["excluded_episodes"]) == (2, 4, 2)
+    assert client.calls == 3 * L + 6 and len(lines) == 1
+    assert "10 consecutive missed deadlines" in out["aborted"]["reason"]
+
+
+SERVE = os.path.join(ROOT, "experiments", "serve.py")
+CLIENT = os.path.join(ROOT, "experiments", "robot_client.py")
+
+
+def _start_service(path):
+    proc = subprocess.Popen([sys.executable, SERVE, path, "--port", "0"], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    m = re.search(r" on (http://\S+) \(", proc.stdout.readline())
+    assert m, proc.stderr.read()
+    return proc, m.group(1)
+
+
+def _client_against(path, after_requests, fault, *args):
+    """Starts a service in a subprocess and the robot client (400 episodes) against it; once the
+    service has answered ``after_requests`` requests, applies ``fault`` to the service process.
+    Returns (client's CompletedProcess-like result, seconds from the fault to the client's exit)."""
+    srv, url = _start_service(path)
+    cl = None
+    try:
+        cl = subprocess.Popen([sys.executable, CLIENT, "--server", url, "--episodes", "400",
+                               *args], cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+        probe, polls = PolicyClient(url, timeout=5.0), 0
+        deadline = time.monotonic() + 60
+        while probe.health()["requests"] - polls < after_requests:
+            polls += 1
+            assert time.monotonic() < deadline and cl.poll() is None
+            time.sleep(0.02)
+        probe.close()
+        fault(srv)
+        t_fault = time.perf_counter()
+        out, err = cl.communicate(timeout=60)
+        return subprocess.CompletedProcess(cl.args, cl.returncode, out, err), \
+            time.perf_counter() - t_fault
+    finally:
+        for p in (cl, srv):
+            if p is not None and p.poll() is None:
+                if p is srv:
+                    p.send_signal(signal.SIGCONT)
+                p.kill()
+                p.wait()
+
+
+def _check_aborted(r, n_lines=2):
+    assert r.returncode == 3, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == n_lines, lines
+    assert lines[0].startswith("policy service outage at episode")  # when it started
+    assert lines[-1].startswith("error: policy service outage: ") and "aborted in episode" in \
+        lines[-1]
+    out = json.loads(r.stdout)
+    assert out["aborted"] and out["aborted"]["episode"] == out["episodes_run"]
+    assert out["episodes"] >= 3 and out["excluded_episodes"] >= 1
+    assert out["episodes"] + out["excluded_episodes"] == out["episodes_run"] < 400
+    assert out["stops"] == out["aborted"]["missed"] and out["outages"] == 1
+    n_success = out["success_rate"] * out["episodes"]
+    assert abs(n_success - round(n_success)) < 1e-9  # a rate over the counted episodes
+    return out
+
+
+def test_robot_client_aborts_when_service_is_killed(tiny_served):
+    """The service process is killed after 3 episodes: exit code 3, the outage reported when it
+    starts and the abort in one line each, no traceback, the interrupted episodes not counted."""
+    path, n = tiny_served[3], 50
+    r, after = _client_against(path, 3 * n + 3, lambda p: p.kill(), "--deadline-ms", "2000")
+    out = _check_aborted(r)
+    assert "50 consecutive missed deadlines" in out["aborted"]["reason"]
+    print(f"\n[measured] service killed: client exit code 3 {after:.2f} s after the kill "
+          f"(outage {out['aborted']['outage_s']:.3f} s, {out['aborted']['missed']} missed "
+          f"deadlines; {out['episodes']} episodes counted, {out['excluded_episodes']} excluded)")
+
+
+def test_robot_client_aborts_when_service_hangs(tiny_served):
+    """A frozen service (SIGSTOP: connections accepted, never answered): the time limit."""
+    path, n = tiny_served[3], 50
+    r, after = _client_against(path, 3 * n + 3, lambda p: p.send_signal(signal.SIGSTOP),
+                               "--deadline-ms", "400", "--max-outage-s", "0.8",
+                               "--max-missed", "1000")
+    out = _check_aborted(r)
+    assert 0.8 <= out["aborted"]["outage_s"] < 1.6
+    assert 2 <= out["aborted"]["missed"] <= 3 and "timed out" in out["aborted"]["last_error"]
+    print(f"\n[measured] service frozen: client exit code 3 {after:.2f} s after SIGSTOP "
+          f"(outage {out['aborted']['outage_s']:.3f} s, {out['aborted']['missed']} missed "
+          f"deadlines of 400 ms)")
 
 
 # -- slow: a trained reach policy, served, against the trainer's own evaluation ----------------

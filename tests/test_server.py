@@ -1,4 +1,6 @@
-"""Policy service: happy path, every malformed-input class, liveness after them, concurrency."""
+"""Policy service: happy path, every malformed-input class, liveness after them, concurrency,
+and the limits: oversized bodies (413 reaches a client that sends the whole body), the request
+deadline (408 for a trickling client), the connection cap (503), unknown fields (400)."""
 
 from __future__ import annotations
 
@@ -16,7 +18,12 @@ import mjx_envs
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy
-from daddpg_jax.deploy.server import PolicyClient, PolicyServer, json_depth_exceeds
+from daddpg_jax.deploy.server import (
+    PolicyClient,
+    PolicyServer,
+    ServiceLimits,
+    json_depth_exceeds,
+)
 from daddpg_jax.running.export import export_state
 from mjx_envs import observation as obs_lib
 
@@ -163,6 +170,8 @@ MALFORMED_FIELDS = [
     ("object field", {"observation": {"a": 1}, "desired_goal": GOOD_G}),
     ("bad id", {"observation": GOOD_O, "desired_goal": GOOD_G, "id": [1]}),
     ("long id", {"observation": GOOD_O, "desired_goal": GOOD_G, "id": "x" * 65}),
+    ("unknown field", {"observation": GOOD_O, "desired_goal": GOOD_G, "deterministic": True}),
+    ("misspelt field", {"observation": GOOD_O, "desired_goals": GOOD_G}),
 ]
 
 
@@ -267,3 +276,219 @@ def test_client_reports_unreachable_service():
     assert a is None and "error" in info
     with pytest.raises(ValueError):
         PolicyClient("ftp://127.0.0.1:1")
+
+
+# -- limits ---------------------------------------------------------------------------------------
+
+@pytest.fixture
+def limited(policy):
+    """Factory of servers with given limits, stopped at the end of the test."""
+    servers = []
+
+    def make(**limits):
+        srv = PolicyServer(policy, port=0, **limits).start()
+        servers.append(srv)
+        return srv
+
+    yield make
+    for srv in servers:
+        srv.stop()
+
+
+def test_unknown_fields_are_refused_by_name(server, policy):
+    o, g = _inputs()
+    status, out = _request(server, "POST", "/act", {"observation": o.tolist(),
+                                                    "desired_goal": g.tolist(), "id": 3,
+                                                    "deterministic": True, "arm": 0})
+    assert status == 400
+    assert "unknown field(s) 'deterministic', 'arm'" in out["error"]
+    status, out = _request(server, "POST", "/act", {"observation": o.tolist(),
+                                                    "desired_goals": g.tolist()})
+    assert status == 400
+    assert "missing field(s) ['desired_goal']" in out["error"] and "'desired_goals'" in out["error"]
+    status, out = _request(server, "POST", "/act", {"observation": o.tolist(),
+                                                    "desired_goal": g.tolist(),
+                                                    **{f"k{i}" * 30: 1 for i in range(8)}})
+    assert status == 400 and "and 3 more" in out["error"] and len(out["error"]) < 600
+    _assert_alive(server, policy)
+
+
+@pytest.mark.parametrize("mb", [12, 50])
+def test_oversized_body_sent_whole_gets_413(server, policy, mb):
+    """A client that sends its whole body before reading (http.client) receives the 413: the
+    server answers from the header, then drains the body instead of resetting the connection."""
+    body = b"x" * (mb * 1024 * 1024)
+    conn = http.client.HTTPConnection(*server.address, timeout=10)
+    try:
+        t0 = time.perf_counter()
+        conn.request("POST", "/act", body=body, headers={"Content-Type": "application/json"})
+        r = conn.getresponse()
+        out = json.loads(r.read())
+        ms = (time.perf_counter() - t0) * 1e3
+    finally:
+        conn.close()
+    assert r.status == 413 and out["status"] == 413 and "exceeds the limit" in out["error"]
+    assert r.getheader("Connection") == "close"
+    print(f"\n[measured] {mb} MB body sent whole: 413 received {ms:.1f} ms after the request "
+          f"started")
+    _assert_alive(server, policy)
+
+
+def test_drain_is_bounded_and_expect_100_is_refused_early(limited, policy):
+    srv = limited(max_drain=256 * 1024)
+    # a body far over the drain bound: the server closes after 256 KiB; the client's send fails
+    # (or it reads the 413), and the service goes on
+    with socket.create_connection(srv.address, timeout=10) as s:
+        s.sendall(b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: 100000000\r\n\r\n")
+        t0, sent = time.perf_counter(), 0
+        with pytest.raises(OSError):
+            while sent < 100_000_000:
+                sent += s.send(b"x" * 65536)
+        assert sent < 20_000_000 and time.perf_counter() - t0 < 5.0
+    # Expect: 100-continue with a body over the limit: the final 413 instead of 100 Continue
+    with socket.create_connection(srv.address, timeout=10) as s:
+        s.sendall(b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: 10000000\r\n"
+                  b"Expect: 100-continue\r\n\r\n")
+        assert s.recv(65536).startswith(b"HTTP/1.1 413")
+    # ... and 100 Continue for a body within it
+    o, g = _inputs()
+    body = json.dumps({"observation": o.tolist(), "desired_goal": g.tolist()}).encode()
+    with socket.create_connection(srv.address, timeout=10) as s:
+        s.sendall(b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n"
+                  b"Expect: 100-continue\r\n\r\n" % len(body))
+        assert s.recv(65536).startswith(b"HTTP/1.1 100")
+        s.sendall(body)
+        assert s.recv(65536).startswith(b"HTTP/1.1 200")
+    _assert_alive(srv, policy)
+
+
+def _trickle(sock, data: bytes, period: float, result: dict, t0: float | None = None):
+    """Sends ``data`` on ``sock`` one byte per ``period`` s until the server answers; records
+    when (s from ``t0``, default the call: the request's first byte) and what."""
+    sock.setblocking(False)
+    t0 = time.perf_counter() if t0 is None else t0
+    got, i = b"", 0
+    while time.perf_counter() - t0 < 8.0:
+        try:
+            c = sock.recv(65536)
+            if not c:
+                break
+            got += c
+            result.setdefault("answered_s", time.perf_counter() - t0)
+        except BlockingIOError:
+            pass
+        except OSError:
+            break
+        if "answered_s" not in result and i < len(data):
+            try:
+                sock.send(data[i:i + 1])
+            except OSError:
+                break
+            i += 1
+        time.sleep(period)
+    result.update(answer=got, closed_s=time.perf_counter() - t0, bytes_sent=i)
+
+
+def test_trickling_clients_are_cut_at_the_deadline(limited, policy):
+    """One client trickles its request line and headers, one its body (a byte every 0.1 s): both
+    get 408 when the 1 s deadline passes, and another client is served all the while."""
+    srv = limited(request_timeout=1.0)
+    o, g = _inputs()
+    body = json.dumps({"observation": o.tolist(), "desired_goal": g.tolist()}).encode()
+    head = b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n\r\n" % len(body)
+    socks = [socket.create_connection(srv.address, timeout=10) for _ in range(2)]
+    results = [{}, {}]
+    try:
+        t_head = time.perf_counter()
+        socks[1].sendall(head)  # headers at once, then the body byte by byte
+        threads = [threading.Thread(target=_trickle, args=(socks[0], head + body, 0.1,
+                                                           results[0])),
+                   threading.Thread(target=_trickle, args=(socks[1], body, 0.1, results[1],
+                                                           t_head))]
+        for t in threads:
+            t.start()
+        client, served, t0 = PolicyClient(srv.url, timeout=5), 0, time.perf_counter()
+        while any(t.is_alive() for t in threads) and time.perf_counter() - t0 < 10:
+            a, info = client.act(o, g)
+            assert a is not None, info
+            served += 1
+            time.sleep(0.005)
+        for t in threads:
+            t.join(timeout=10)
+        client.close()
+    finally:
+        for sk in socks:
+            sk.close()
+    for name, r in zip(("headers", "body"), results, strict=True):
+        assert r["answer"].startswith(b"HTTP/1.1 408"), (name, r)
+        assert b"Connection: close" in r["answer"] and b'"status":408' in r["answer"]
+        assert 0.9 <= r["answered_s"] <= 2.0, (name, r)
+        assert r["closed_s"] < 4.0, (name, r)  # the server closed the connection too
+    assert served >= 20 and srv.stats["timeouts"] == 2
+    print(f"\n[measured] trickling clients (1 byte / 0.1 s) cut with 408 at "
+          f"{results[0]['answered_s']:.2f} s (headers) and {results[1]['answered_s']:.2f} s "
+          f"(body) of a 1 s deadline; {served} requests of another client served meanwhile")
+    _assert_alive(srv, policy)
+
+
+def test_idle_keepalive_connection_is_closed(limited, policy):
+    srv = limited(idle_timeout=0.3, request_timeout=5.0)
+    client = PolicyClient(srv.url, timeout=5)
+    assert client.act(*_inputs())[0] is not None
+    sock = client._conn.sock
+    t0 = time.perf_counter()
+    sock.settimeout(5)
+    assert sock.recv(100) == b""  # the server closed the idle connection
+    assert 0.25 <= time.perf_counter() - t0 < 2.0
+    a, info = client.act(*_inputs())  # sent again on a new connection: no missed deadline
+    assert a is not None, info
+    assert client._conn.sock is not sock
+    client.close()
+
+
+def test_connection_cap(limited, policy):
+    """With 2 connections open, a third gets 503 and is closed; once one of the two closes, a
+    new connection is served."""
+    srv = limited(max_connections=2)
+    held = [PolicyClient(srv.url, timeout=5) for _ in range(2)]
+    for c in held:
+        assert c.act(*_inputs())[0] is not None  # admitted and kept open
+    assert srv.stats["connections"] == 2
+    o, g = _inputs()
+    body = json.dumps({"observation": o.tolist(), "desired_goal": g.tolist()}).encode()
+    t0 = time.perf_counter()
+    ans = _raw(srv, b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                    b"Content-Length: %d\r\n\r\n%s" % (len(body), body))
+    ms = (time.perf_counter() - t0) * 1e3
+    assert ans.startswith(b"HTTP/1.1 503") and b"Connection: close" in ans
+    assert b"Retry-After: 1" in ans and b"over capacity" in ans
+    third = PolicyClient(srv.url, timeout=5)
+    a, info = third.act(o, g)
+    assert a is None and "HTTP 503" in info["error"]
+    assert srv.stats["refused"] == 2
+    held.pop().close()
+    deadline = time.monotonic() + 5
+    while srv.stats["connections"] >= 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    a, info = third.act(o, g)
+    assert a is not None, info
+    assert held[0].act(o, g)[0] is not None  # the connection still open was never disturbed
+    print(f"\n[measured] connection cap 2: a third client's request answered 503 in {ms:.1f} ms")
+    for c in (*held, third):
+        c.close()
+
+
+def test_limits_are_validated_and_configurable(policy, tmp_path, capsys):
+    from daddpg_jax.cli import serve
+
+    for bad in ({"max_connections": 0}, {"request_timeout": 0.0}, {"idle_timeout": float("inf")},
+                {"max_body": 0}, {"max_drain": -1}):
+        with pytest.raises(ValueError):
+            ServiceLimits(**bad)
+    srv = PolicyServer(policy, port=0, limits=ServiceLimits(request_timeout=0.5, max_connections=3))
+    assert srv.limits.request_timeout == 0.5 and srv.httpd.limits.max_connections == 3
+    srv.httpd.server_close()
+    assert serve.main([str(tmp_path / "p.npz"), "--max-connections", "0"]) == 2
+    assert "max_connections must be at least 1" in capsys.readouterr().err
+    assert serve.main([str(tmp_path / "p.npz"), "--request-timeout", "-1"]) == 2
+    assert "request_timeout" in capsys.readouterr().err

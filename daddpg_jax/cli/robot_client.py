@@ -10,6 +10,16 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
 The task and its env settings (scene, dt, max_delta, workspace, goal region, threshold, ...)
 come from the service's GET /info, i.e. from the exported run; settings an older export lacks
 are the task's defaults from mjx_envs.settings. No JAX is imported.
+
+Outages: a control period without a usable answer in time (no answer, an error, a malformed or
+late answer) is a missed deadline, in which both arms hold. One line on stderr reports each
+outage when it starts and one when the service answers again. After --max-missed consecutive
+missed deadlines or --max-outage-s seconds of outage, whichever comes first, the client stops:
+the summary so far on stdout (with "aborted"), one line on stderr, exit code 3. Episodes with
+a missed deadline are never counted in the results ("excluded_episodes" says how many).
+
+Exit codes: 0 done; 2 the service unreachable at start or serving another task; 3 aborted on an
+outage of the service.
 """
 
 from __future__ import annotations
@@ -21,6 +31,8 @@ import time
 
 
 def _parser() -> argparse.ArgumentParser:
+    from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S
+
     p = argparse.ArgumentParser(prog="robot_client.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--server", default="http://127.0.0.1:8000", help="policy service URL")
@@ -30,6 +42,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the NumPy goal sampler")
     p.add_argument("--deadline-ms", type=float, default=None,
                    help="hold both arms when the answer takes longer (default: one control period)")
+    p.add_argument("--max-missed", type=int, default=MAX_MISSED,
+                   help="abort after this many consecutive missed deadlines (default "
+                        f"{MAX_MISSED}; 0: no limit)")
+    p.add_argument("--max-outage-s", type=float, default=MAX_OUTAGE_S,
+                   help="abort when an outage of the service lasts this long, s (default "
+                        f"{MAX_OUTAGE_S:g}; 0: no limit)")
     p.add_argument("--max-speed", type=float, default=None,
                    help="cap of each gripper target's speed, m/s (default: what the policy can "
                         "command, sqrt(3)*max_delta/dt)")
@@ -52,12 +70,14 @@ class _ServiceError(Exception):
 def _served(server: str, task):
     """(service info, the task's settings (a mjx_envs.settings config), env settings with
     ``dt``) of the served policy; raises _ServiceError."""
+    from http.client import HTTPException
+
     from daddpg_jax.deploy.policy import env_settings, task_settings
     from daddpg_jax.deploy.server import PolicyClient
 
     try:
         info = PolicyClient(server, timeout=5.0).info()
-    except (OSError, RuntimeError, ValueError) as e:
+    except (OSError, RuntimeError, ValueError, HTTPException) as e:
         raise _ServiceError(f"policy service at {server} not reachable: {e}") from None
     served = info.get("task")
     if task is not None and served != task:
@@ -68,10 +88,33 @@ def _served(server: str, task):
         raise _ServiceError(f"settings of the served {served!r} policy: {e}") from None
 
 
+def _stderr_line(line: str):
+    print(line, file=sys.stderr, flush=True)
+
+
+def _finish(out: dict, args) -> int:
+    """Print and save the summary; the exit code (3 when the run was aborted)."""
+    print(json.dumps(out, indent=2), flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+    excluded = out["excluded_episodes"]
+    if out["aborted"]:
+        a = out["aborted"]
+        _stderr_line(f"error: {a['reason']}; aborted in episode {a['episode']} of "
+                     f"{args.episodes}; {excluded} episode(s) excluded, {out['episodes']} "
+                     f"counted")
+        return 3
+    if excluded:
+        _stderr_line(f"note: {excluded} of {out['episodes_run']} episodes excluded from the "
+                     f"results (missed deadlines)")
+    return 0
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
 
-    from daddpg_jax.deploy.robot import run_episodes
+    from daddpg_jax.deploy.robot import OutageMonitor, run_episodes
     from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
     from daddpg_jax.deploy.server import PolicyClient
     from mjx_envs.numpy_env import NumpyDualArmEnv
@@ -88,16 +131,18 @@ def main(argv=None) -> int:
     client = PolicyClient(args.server, timeout=max(limits.deadline_s, 0.001))
     task = info["task"]
     env = NumpyDualArmEnv(task_cfg, task=task, exact=not args.float64)
+    monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
     t0 = time.perf_counter()
-    out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed)
+    try:
+        out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed,
+                           monitor=monitor)
+    finally:
+        client.close()
     out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,
                algo=info.get("algo"), seed=args.seed, deadline_ms=limits.deadline_s * 1e3,
-               max_step_m=limits.max_step, min_clearance_m=limits.min_clearance)
-    print(json.dumps(out, indent=2))
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
-    return 0
+               max_step_m=limits.max_step, min_clearance_m=limits.min_clearance,
+               max_missed=monitor.max_missed, max_outage_s=monitor.max_outage_s)
+    return _finish(out, args)
 
 
 if __name__ == "__main__":

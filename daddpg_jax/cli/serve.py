@@ -3,11 +3,13 @@
 Examples (daddpg-serve = python experiments/serve.py)
   daddpg-serve policy.npz                       # http://127.0.0.1:8000
   daddpg-serve policy.npz --port 8100 --verbose
+  daddpg-serve policy.npz --request-timeout 2 --max-connections 8
 
 Endpoints: POST /act {"observation": [[25],[25]], "desired_goal": [[3],[3]]} -> {"action": [8],
 "per_arm": [[4],[4]], "latency_ms"}; GET /health; GET /info. Loopback by default: binding
 another address exposes an unauthenticated service that moves a robot (docs/DEPLOYMENT.md).
-No JAX is imported.
+Limits: body size (413), a deadline for each request's headers and body (408), keep-alive idle
+time, open connections (503); see docs/RELIABILITY.md. No JAX is imported.
 """
 
 from __future__ import annotations
@@ -17,31 +19,55 @@ import sys
 
 
 def main(argv=None) -> int:
+    from daddpg_jax.deploy.server import (  # NumPy + stdlib; --help shows the defaults
+        IDLE_TIMEOUT_S,
+        MAX_BODY,
+        MAX_CONNECTIONS,
+        REQUEST_TIMEOUT_S,
+    )
+
     p = argparse.ArgumentParser(prog="serve.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("policy", help="exported .npz (daddpg-export)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 = any free)")
-    p.add_argument("--max-body", type=int, default=64 * 1024, help="largest request body, bytes")
+    p.add_argument("--max-body", type=int, default=MAX_BODY,
+                   help=f"largest request body, bytes (default {MAX_BODY}; larger: 413)")
+    p.add_argument("--request-timeout", type=float, default=REQUEST_TIMEOUT_S,
+                   help="seconds from a request's first byte to the end of its body (default "
+                        f"{REQUEST_TIMEOUT_S:g}; later: 408 and the connection closed)")
+    p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S,
+                   help="seconds a keep-alive connection may wait between requests (default "
+                        f"{IDLE_TIMEOUT_S:g})")
+    p.add_argument("--max-connections", type=int, default=MAX_CONNECTIONS,
+                   help=f"connections served at once (default {MAX_CONNECTIONS}; more: 503)")
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
     args = p.parse_args(argv)
 
     from daddpg_jax.deploy import NumpyPolicy, PolicyFormatError
-    from daddpg_jax.deploy.server import PolicyServer
+    from daddpg_jax.deploy.server import PolicyServer, ServiceLimits
 
+    try:
+        limits = ServiceLimits(max_body=args.max_body, request_timeout=args.request_timeout,
+                               idle_timeout=args.idle_timeout,
+                               max_connections=args.max_connections)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     try:
         policy = NumpyPolicy.load(args.policy)
     except (FileNotFoundError, PolicyFormatError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:
-        server = PolicyServer(policy, host=args.host, port=args.port, max_body=args.max_body,
+        server = PolicyServer(policy, host=args.host, port=args.port, limits=limits,
                               verbose=args.verbose)
     except OSError as e:
         print(f"error: cannot bind {args.host}:{args.port}: {e}", file=sys.stderr)
         return 2
     print(f"serving {policy.task}/{policy.algo} policy on {server.url} "
-          f"(POST /act, GET /health, GET /info); Ctrl-C stops", flush=True)
+          f"(POST /act, GET /health, GET /info; request timeout {limits.request_timeout:g} s, "
+          f"at most {limits.max_connections} connections); Ctrl-C stops", flush=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:

@@ -20,11 +20,15 @@ opening of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice t
 ``locked_opening`` when the task locks the fingers (reach, push).
 
 ``run_episode`` / ``run_episodes`` are the robot client's control loop (policy service ->
-safety layer -> targets), used sim-to-sim with ``mjx_envs.numpy_env``. See docs/DEPLOYMENT.md.
+safety layer -> targets), used sim-to-sim with ``mjx_envs.numpy_env``; ``OutageMonitor``
+reports outages of the service and ends the run when one lasts too long, and
+``summarize_episodes`` leaves the episodes with a missed deadline out of the results. See
+docs/DEPLOYMENT.md and docs/RELIABILITY.md.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -185,8 +189,98 @@ def servol_targets(action, tcp_pose_base, max_delta: float, tcp_target_world=Non
 
 # -- the client's control loop (sim-to-sim with mjx_envs.numpy_env, or a real robot driver) --
 
+MAX_MISSED = 50
+"""Default limit of an outage of the policy service: consecutive missed deadlines."""
+MAX_OUTAGE_S = 2.0
+"""Default limit of an outage of the policy service: seconds (50 control periods at 25 Hz)."""
+
+
+class ServiceOutage(Exception):
+    """An outage of the policy service reached the client's limits (``OutageMonitor``).
+
+    ``missed``: consecutive missed deadlines; ``outage_s``: seconds since the first failed
+    request was sent; ``last_error``: why the last answer was unusable; ``episode``: the
+    summary of the episode it interrupted (set by ``run_episode``).
+    """
+
+    def __init__(self, message: str, missed: int, outage_s: float, last_error: str):
+        super().__init__(message)
+        self.missed, self.outage_s, self.last_error = missed, outage_s, last_error
+        self.episode: dict | None = None
+
+
+class OutageMonitor:
+    """Follows the policy service's missed deadlines (control periods without a usable answer
+    in time, in which the robot held) and gives up on a lasting outage.
+
+    Reports one line through ``report`` when an outage starts (the first missed deadline after
+    an answer) and one when the service answers again, never one per control period. Raises
+    ``ServiceOutage`` once an outage reaches ``max_missed`` consecutive missed deadlines or
+    lasts ``max_outage_s`` seconds from the start of its first failed request, whichever comes
+    first; a limit of None or <= 0 is off. ``report``: callable taking one line (default:
+    silent); ``clock``: monotonic seconds, also used by ``run_episode`` to time requests.
+    """
+
+    def __init__(self, max_missed: int | None = MAX_MISSED,
+                 max_outage_s: float | None = MAX_OUTAGE_S, report=None, clock=time.perf_counter):
+        self.max_missed = int(max_missed) if max_missed and max_missed > 0 else None
+        self.max_outage_s = float(max_outage_s) if max_outage_s and max_outage_s > 0 else None
+        self.report, self.clock = report, clock
+        self.missed = 0  # consecutive missed deadlines of the current outage
+        self.since: float | None = None  # when the current outage's first failed request left
+        self.total_missed = 0
+        self.outages = 0
+        self.longest_s = 0.0
+
+    def _say(self, line: str):
+        if self.report is not None:
+            self.report(line)
+
+    def limits_text(self) -> str:
+        parts = [f"{self.max_missed} missed deadlines" if self.max_missed else "",
+                 f"{self.max_outage_s:g} s" if self.max_outage_s else ""]
+        return " or ".join(p for p in parts if p) or "none"
+
+    def missed_deadline(self, why: str, sent_at: float | None = None, where: str = "") -> None:
+        """A control period without a usable answer; ``sent_at``: when its request left."""
+        now = self.clock()
+        if self.missed == 0:
+            self.since = now if sent_at is None else float(sent_at)
+            self.outages += 1
+            at = f" at {where}" if where else ""
+            self._say(f"policy service outage{at}: {why}; holding the arms (limits: "
+                      f"{self.limits_text()})")
+        self.missed += 1
+        self.total_missed += 1
+        outage_s = now - self.since
+        self.longest_s = max(self.longest_s, outage_s)
+        if ((self.max_missed is not None and self.missed >= self.max_missed)
+                or (self.max_outage_s is not None and outage_s >= self.max_outage_s)):
+            raise ServiceOutage(
+                f"policy service outage: {self.missed} consecutive missed deadlines in "
+                f"{outage_s:.2f} s (limits: {self.limits_text()}); last: {why}",
+                self.missed, outage_s, why)
+
+    def answered(self) -> None:
+        """A usable answer in time: ends the current outage, if any."""
+        if self.missed:
+            outage_s = self.clock() - self.since
+            self.longest_s = max(self.longest_s, outage_s)
+            self._say(f"policy service answering again after {self.missed} missed deadline(s) "
+                      f"in {outage_s:.2f} s")
+            self.missed, self.since = 0, None
+
+
+def _episode_summary(res, stops, errors, clear_min, rtts, complete=True) -> dict:
+    return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),
+                stops=stops, errors=errors[:5], min_arm_clearance=float(clear_min),
+                rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)),
+                complete=complete)
+
+
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
-                deadline_s: float | None = None, grip_slice=(0, 3)) -> dict:
+                deadline_s: float | None = None, grip_slice=(0, 3),
+                monitor: OutageMonitor | None = None, episode: int = 0) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
@@ -195,25 +289,29 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     client: ``daddpg_jax.deploy.server.PolicyClient``; safety:
     ``daddpg_jax.deploy.safety.SafetyFilter``.
     An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
-    limits' deadline) makes both arms hold. Returns the episode's summary.
+    limits' deadline) is a missed deadline: both arms hold (``stops`` counts them). With a
+    ``monitor`` (``OutageMonitor``), each period is reported to it after the hold has been
+    applied; its ``ServiceOutage`` ends the episode, with this episode's partial summary in
+    ``.episode``. ``episode``: the episode's index, for the reports. Returns the summary.
     """
-    import time
-
+    clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
     stops, rtts, errors = 0, [], []
     clear_min = res.arm_clearance
-    for _ in range(env.episode_length):
-        t0 = time.perf_counter()
+    for step in range(env.episode_length):
+        t0 = clock()
         answer, info = client.act(res.observation, res.desired_goal)
-        rtt = time.perf_counter() - t0
+        rtt = clock() - t0
         rtts.append(rtt * 1e3)
         action = None if answer is None else safety.validate_action(answer)
-        if action is None or rtt > deadline:
-            why = info.get("error") or ("late" if action is not None else "malformed")
+        missed = action is None or rtt > deadline
+        if missed:
+            late = action is not None
+            why = (f"late answer ({rtt * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)" if late
+                   else info.get("error") or "malformed answer")
             errors.append(why)
-            late = rtt > deadline and action is not None
             decision = safety.hold(env.target, reason="late" if late else "stop")
             stops += 1
         else:
@@ -222,27 +320,71 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
         res = env.step_targets(decision.target, ctrl)
         clear_min = min(clear_min, res.arm_clearance)
-    return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),
-                stops=stops, errors=errors[:5], min_arm_clearance=float(clear_min),
-                rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)))
+        if monitor is None:
+            continue
+        if not missed:
+            monitor.answered()
+            continue
+        try:
+            monitor.missed_deadline(why, sent_at=t0,
+                                    where=f"episode {episode + 1}, step {step + 1}")
+        except ServiceOutage as e:
+            e.episode = _episode_summary(res, stops, errors, clear_min, rtts, complete=False)
+            raise
+    return _episode_summary(res, stops, errors, clear_min, rtts)
+
+
+def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
+                       monitor: OutageMonitor | None = None, aborted: dict | None = None) -> dict:
+    """The run's summary from the episodes' summaries (``run_episode``).
+
+    An episode with a missed deadline (``stops`` > 0, including one cut short by an abort) is
+    excluded from the results: ``episodes`` counts the others, over which ``success_rate`` and
+    ``mean_final_distance`` are computed (None when there are none); ``episodes_run`` and
+    ``excluded_episodes`` say how many ran and how many were left out. ``stops``, the smallest
+    arm gap and the round-trip times cover every episode run.
+    """
+    counted = [e for e in eps if e["stops"] == 0]
+
+    def stat(fn, key, among):
+        return float(fn([e[key] for e in among])) if among else None
+
+    return dict(episodes=len(counted), episodes_run=len(eps),
+                excluded_episodes=len(eps) - len(counted),
+                success_rate=(sum(e["success"] for e in counted) / len(counted)
+                              if counted else None),
+                mean_final_distance=stat(np.mean, "final_distance", counted),
+                stops=int(sum(e["stops"] for e in eps)),
+                outages=0 if monitor is None else monitor.outages,
+                longest_outage_s=None if monitor is None else round(monitor.longest_s, 3),
+                safety_counts=dict(safety_counts or {}),
+                min_arm_clearance=stat(min, "min_arm_clearance", eps),
+                rtt_ms_p50=stat(np.median, "rtt_ms_p50", eps),
+                rtt_ms_max=stat(max, "rtt_ms_max", eps),
+                first_errors=[err for e in eps for err in e["errors"]][:5],
+                aborted=aborted)
 
 
 def run_episodes(env, client, safety, episodes: int, seed: int = 0,
-                 deadline_s: float | None = None) -> dict:
-    """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; success rate etc."""
+                 deadline_s: float | None = None, monitor: OutageMonitor | None = None) -> dict:
+    """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; the summary of
+    ``summarize_episodes`` (success rate over the episodes without a missed deadline, ...).
+
+    monitor: ``OutageMonitor`` (default: ``MAX_MISSED`` / ``MAX_OUTAGE_S``, silent). When it
+    gives up, the run stops there and ``aborted`` holds ``reason``, ``episode`` (1-based),
+    ``missed``, ``outage_s`` and ``last_error``; otherwise ``aborted`` is None.
+    """
     rng = np.random.default_rng(seed)
-    eps = [run_episode(env, client, safety, rng=rng, deadline_s=deadline_s)
-           for _ in range(int(episodes))]
-    n = max(len(eps), 1)
-
-    def stat(fn, key):
-        return float(fn([e[key] for e in eps])) if eps else float("nan")
-
-    return dict(episodes=len(eps), success_rate=sum(e["success"] for e in eps) / n,
-                stops=int(sum(e["stops"] for e in eps)),
-                safety_counts=dict(safety.counts),
-                mean_final_distance=stat(np.mean, "final_distance"),
-                min_arm_clearance=stat(min, "min_arm_clearance"),
-                rtt_ms_p50=stat(np.median, "rtt_ms_p50"),
-                rtt_ms_max=stat(max, "rtt_ms_max"),
-                first_errors=[err for e in eps for err in e["errors"]][:5])
+    monitor = OutageMonitor() if monitor is None else monitor
+    eps, aborted = [], None
+    for k in range(int(episodes)):
+        try:
+            eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s,
+                                   monitor=monitor, episode=k))
+        except ServiceOutage as e:
+            if e.episode is not None:
+                eps.append(e.episode)
+            aborted = dict(reason=str(e), episode=k + 1, missed=e.missed,
+                           outage_s=round(e.outage_s, 3), last_error=e.last_error)
+            break
+    return summarize_episodes(eps, safety.counts, monitor, aborted)
