@@ -232,18 +232,30 @@ def test_critic_gradient_isolation():
 
 # --- presets -----------------------------------------------------------------------------
 
+def test_cpu_preset_caps_the_updates_of_many_envs():
+    p = preset("reach", 2048, device="cpu")
+    assert (p["batch_size"], p["n_batches"], p["n_cycles"]) == (1024, 100, 3)
+    assert p["buffer_size"] == 20 * 2048 * 50
+    p = preset("push", 32, device="cpu")
+    assert (p["batch_size"], p["n_batches"], p["n_cycles"]) == (1024, 100, 50)
+    # the default sizes keep the HER baselines' schedule
+    assert preset("push", device="cpu")["n_batches"] == 40
+    assert preset("reach", 2048, device="gpu")["batch_size"] == 8192
+
+
 def test_preset_keeps_replay_ratio():
     p = preset("reach")
     assert p["num_envs"] == 2 and p["batch_size"] == 256
     assert p["n_batches"] == 40 and p["n_cycles"] == 20
     assert preset("push", 2)["n_cycles"] == 50
-    for n in (1, 2, 8, 64, 512, 4096):
-        p = preset("push", n)
-        assert p["batch_size"] <= 8192
-        rr = replay_ratio(p["n_batches"], p["batch_size"], n)
-        assert REPLAY_RATIO <= rr < REPLAY_RATIO * 1.1 + 1, (n, p, rr)
-        cfg = TrainConfig(**p)
-        assert cfg.num_envs == n
+    for device, sizes in (("gpu", (1, 2, 8, 64, 512, 4096)), ("cpu", (1, 2, 8, 16))):
+        for n in sizes:
+            p = preset("push", n, device=device)
+            assert p["batch_size"] <= 8192
+            rr = replay_ratio(p["n_batches"], p["batch_size"], n)
+            assert REPLAY_RATIO <= rr < REPLAY_RATIO * 1.1 + 1, (n, p, rr)
+            cfg = TrainConfig(**p)
+            assert cfg.num_envs == n
     with pytest.raises(ValueError):
         preset("nope", 2)
     with pytest.raises(ValueError):

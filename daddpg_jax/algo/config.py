@@ -210,6 +210,14 @@ BASE_N_BATCHES = 40
 REPLAY_RATIO = BASE_N_BATCHES * BASE_BATCH / (BASE_NUM_ENVS * 50)
 MAX_BATCH = 8192
 MIN_BUFFER_CYCLES = 20
+# CPU, many envs: the update work per cycle is capped at CPU_MAX_UPDATES updates of at most
+# CPU_MAX_BATCH (100 x 1024 samples took 3.1 s on the 2-core CPU, about as long as the C
+# engine's rollout of 2048 reach envs, 3.7 s: docs/RESULTS.md), and an epoch holds about
+# CPU_EPOCH_ENV_STEPS env steps (an evaluation every ~30 s at 2048 envs) up to the task's
+# n_cycles. At num_envs <= 16 the cap does not bind: the replay-ratio rule alone.
+CPU_MAX_BATCH = 1024
+CPU_MAX_UPDATES = 100
+CPU_EPOCH_ENV_STEPS = 300_000
 
 # Per-task preset values, on a CPU and on an accelerator (device "gpu"/"tpu").
 # CPU: n_cycles follows the HER baselines (20 for reach, 50 otherwise); n_epochs is a budget.
@@ -262,7 +270,10 @@ def preset(task: str, num_envs: int | None = None, episode_length: int = 50,
     fewer than 20 cycles of data, in which case it holds 20 cycles.
 
     device: 'cpu', 'gpu' or 'tpu'; None = the device JAX runs on (`current_device`).
-    On a CPU, num_envs=None picks 2 (the HER baselines' rollouts per worker; right for 2 cores).
+    On a CPU, num_envs=None picks 2 (the HER baselines' rollouts per worker; right for 2 cores);
+    with many envs the batch is at most CPU_MAX_BATCH and the updates per cycle at most
+    CPU_MAX_UPDATES (the replay ratio then falls: the rollouts and not the updates set the pace),
+    and n_cycles = round(CPU_EPOCH_ENV_STEPS / (num_envs * T)) (1 to the task's n_cycles).
     On an accelerator: physics "mjx", num_envs=None picks ACCELERATOR_NUM_ENVS (4096), the same
     batch/updates rule, and n_cycles = round(epoch_env_steps / (num_envs * T)) (at least 1) so
     that an epoch holds about the same number of env steps at any num_envs (reach 4e5, contact
@@ -280,6 +291,8 @@ def preset(task: str, num_envs: int | None = None, episode_length: int = 50,
     num_envs = int(num_envs)
     if num_envs < 1:
         raise ConfigError(f"num_envs must be >= 1, got {num_envs}")
+    if not accel:
+        max_batch = min(max_batch, CPU_MAX_BATCH)
     scale = max(1.0, num_envs / BASE_NUM_ENVS)
     batch = int(min(max_batch, 2 ** round(math.log2(BASE_BATCH * scale))))
     batch = max(batch, min(BASE_BATCH, max_batch))
@@ -288,12 +301,16 @@ def preset(task: str, num_envs: int | None = None, episode_length: int = 50,
     buffer_size = max(1_000_000, MIN_BUFFER_CYCLES * num_envs * episode_length)
     out = dict(task=task, num_envs=num_envs, batch_size=batch, n_batches=n_batches,
                buffer_size=buffer_size)
+    steps_per_cycle = num_envs * episode_length
     if accel:
         a = TASK_PRESETS[task]["accelerator"]
         out.update(physics="mjx", n_epochs=a["n_epochs"],
-                   n_cycles=max(1, int(round(a["epoch_env_steps"] / (num_envs * episode_length)))))
+                   n_cycles=max(1, int(round(a["epoch_env_steps"] / steps_per_cycle))))
     else:
-        out.update(TASK_PRESETS[task]["cpu"])
+        c = TASK_PRESETS[task]["cpu"]
+        out.update(c, n_batches=min(n_batches, CPU_MAX_UPDATES),
+                   n_cycles=min(c["n_cycles"],
+                                max(1, int(round(CPU_EPOCH_ENV_STEPS / steps_per_cycle)))))
     return out
 
 
