@@ -211,8 +211,8 @@ REPLAY_RATIO = BASE_N_BATCHES * BASE_BATCH / (BASE_NUM_ENVS * 50)
 MAX_BATCH = 8192
 MIN_BUFFER_CYCLES = 20
 # CPU, many envs: the update work per cycle is capped at CPU_MAX_UPDATES updates of at most
-# CPU_MAX_BATCH (100 x 1024 samples took 3.1 s on the 2-core CPU, about as long as the C
-# engine's rollout of 2048 reach envs, 3.7 s: docs/RESULTS.md), and an epoch holds about
+# CPU_MAX_BATCH (100 updates of 1024 took ~1.7 s on the 2-core CPU, about as long as the C
+# engine's rollout of 2048 reach envs, ~2.1 s: docs/RESULTS.md), and an epoch holds about
 # CPU_EPOCH_ENV_STEPS env steps (an evaluation every ~30 s at 2048 envs) up to the task's
 # n_cycles. At num_envs <= 16 the cap does not bind: the replay-ratio rule alone.
 CPU_MAX_BATCH = 1024
