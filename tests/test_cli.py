@@ -52,9 +52,14 @@ def test_preset_device_comes_from_jax_and_can_be_overridden():
     assert preset("push") == preset("push", device="cpu")
     gpu = build_config("push", device="gpu")
     assert gpu.physics == "mjx" and gpu.num_envs == 4096
-    args = cli.build_parser("cpu").parse_args(["--task", "push", "--device", "gpu"])
+    args = cli.build_parser("cpu").parse_args(["--task", "push", "--device", "gpu",
+                                                "--physics", "c"])
     cfg, _, _ = cli.resolve(args, None)
-    assert cfg == gpu
+    assert cfg == gpu.replace(physics="c")
+    # the accelerator preset's MJX at 4096 envs would hang on this CPU: refused
+    args = cli.build_parser("cpu").parse_args(["--task", "push", "--device", "gpu"])
+    with pytest.raises(schema.ConfigError, match="num_envs=4096.*use --physics c"):
+        cli.resolve(args, None)
 
 
 def _resolve(*argv):
@@ -104,6 +109,9 @@ def test_config_file_reruns_a_recorded_configuration(tmp_path):
     (["--num-envs", "-3"], "num_envs must be >= 1"),
     (["--resume", "/nonexistent/run"], "no config.json there"),
     (["--config", "/nonexistent/run/config.json"], "no config.json there"),
+    (["--resume", "/nonexistent/run", "--force"], "--resume and --force exclude each other"),
+    (["--physics", "mjx", "--num-envs", "256"], "num_envs=256: MJX at 256 or more envs"),
+    (["--physics", "mjx", "--set", "n_test_episodes=300"], "use --physics c"),
 ])
 def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
@@ -112,6 +120,39 @@ def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
     assert e.value.code == 2 and message in err, err
     assert "Traceback" not in err
     assert not (tmp_path / "x").exists()
+
+
+def test_out_must_be_new_empty_or_forced(tmp_path, capsys):
+    """A new run never writes into a used directory: one-line errors, nothing touched."""
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep")
+    run = tmp_path / "run"
+    ckpt.save_config(str(run), build_config("reach", device="cpu"))
+    cases = [(["--out", str(afile)], "is a file, not a directory"),
+             (["--out", str(afile / "x")], f"{afile} is a file, not a directory"),
+             (["--out", str(other)], "not empty (it holds other files)"),
+             (["--out", str(other), "--force"], "--force replaces only a run"),
+             (["--out", str(run)], f"not empty (it holds a run); continue a run with --resume "
+                                   f"{run}, replace it with --force"),
+             (["--force"], "--force needs --out"),
+             (["--resume", str(run), "--out", str(other)], "drop --out")]
+    for argv, message in cases:
+        with pytest.raises(SystemExit) as e:
+            cli.main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and message in err and "Traceback" not in err, (argv, err)
+        assert len([ln for ln in err.splitlines() if "error:" in ln]) == 1
+    assert (other / "notes.txt").read_text() == "keep" and afile.read_text() == "x"
+    assert sorted(os.listdir(run)) == ["config.json"]
+    # accepted (resolving deletes nothing: the runner does, before anything compiles)
+    for argv in (["--out", str(run), "--force"], ["--out", str(tmp_path / "empty")],
+                 ["--resume", str(run)], ["--resume", str(run / "config.json")]):
+        _, _, run_dir = _resolve(*argv)
+        assert os.path.abspath(run_dir) in (str(run), str(tmp_path / "empty"))
+    assert sorted(os.listdir(run)) == ["config.json"]
 
 
 def test_schema_parse_round_trips_every_field():

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, train
+from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, RunDirError, train
 from tests import conftest, toy_env
 from tests.conftest import T
 
@@ -84,8 +84,8 @@ def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
     assert new[0]["test_success_rate"] == rows[0]["test_success_rate"]
 
 
-def test_resume_without_checkpoint_fails_clearly(env, tmp_path):
-    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+def test_resume_without_a_run_fails_clearly(env, tmp_path):
+    with pytest.raises(RunDirError, match="no config.json"):
         train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
 
 

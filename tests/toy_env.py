@@ -3,6 +3,8 @@
 Each gripper is a point moved by `max_delta * action[:3]` per step and clipped to a box; the
 finger entry is ignored. Each arm has its own random goal; the arms' goal regions overlap in the
 middle so the points can come close. Used by the trainer tests so they run in seconds.
+With `fault_goal_x` set it reports `metrics["physics_ok"]` like the MuJoCo envs: 0 from step 1
+on in the episodes whose left-arm goal x is above that value (physics-fault tests).
 
 Observation per arm (25, Fetch layout with the object terms zero): gripper pos (3), object pos
 (3), object rel pos (3), finger pos (2), object rot (3), object velp (3), object velr (3),
@@ -40,6 +42,8 @@ class ToyConfig:
     box_hi: tuple = (0.3, 0.3, 0.3)
     start: tuple = ((-0.1, 0.0, 0.15), (0.1, 0.0, 0.15))
     goal_range: float = 0.15
+    fault_goal_x: float | None = None   # set: report metrics["physics_ok"], 0 from step 1 on
+    #                                     in episodes whose left goal x is above it
 
 
 class ToyReach:
@@ -102,6 +106,9 @@ class ToyReach:
         metrics = {"success": self.success(pos, goal), "arm_contact": contact,
                    "goal_reward": jnp.mean(-(d >= c.threshold).astype(jnp.float32)),
                    "arm_contact_penalty": jnp.mean(info["arm_contact_penalty"])}
+        if c.fault_goal_x is not None:   # a stand-in for an engine that froze (C backend)
+            fault = (step >= 1) & (goal[0, 0] > c.fault_goal_x)
+            metrics["physics_ok"] = 1.0 - fault.astype(jnp.float32)
         return State(data={"pos": pos, "goal": goal},
                      obs={"observation": obs, "achieved_goal": pos, "desired_goal": goal},
                      reward=reward,

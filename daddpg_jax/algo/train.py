@@ -213,9 +213,26 @@ def _acting_fns(sp: _Setup):
                 rand = jax.random.uniform(k_rand, pi.shape, minval=-1.0, maxval=1.0)
                 pi = jnp.where(coin, rand, pi)
             return nets.joint_action(pi)
-        return acting.play_episodes(env, actors, key, n_envs, sp.info_keys)
+        # acting.play_episodes, recording physics_ok as well (for the physics-fault rate)
+        k_reset, k_scan = jax.random.split(key)
+        s0, tr = acting.rollout(env, actors, jax.random.split(k_reset, n_envs), key=k_scan,
+                                step_keys=acting.TRAIN_STEP_KEYS, record=_record(sp.info_keys))
+        return acting.stack_episodes(s0, tr), tr
 
     return act, rollout
+
+
+def _record(info_keys):
+    """`acting.transitions` plus the env's per-step `physics_ok` metric when it has one."""
+    base = acting.transitions(info_keys)
+
+    def record(s, a, s2):
+        out = base(s, a, s2)
+        if "physics_ok" in s2.metrics:
+            out["physics_ok"] = s2.metrics["physics_ok"]
+        return out
+
+    return record
 
 
 def _normalizer_update(sp: _Setup):
@@ -322,13 +339,19 @@ def _updates_fn(sp: _Setup, update_progress: Callable | None, update_tick: int):
 
 
 def _rollout_metrics(episodes, tr):
+    """Means over the episodes of a rollout; `physics_fault` (only for an env that reports
+    `physics_ok`): the fraction of episodes with a step whose physics_ok is 0."""
     g_last = episodes.g[:, -1]
     dist = jnp.linalg.norm(episodes.ag[:, -1] - g_last, axis=-1)               # [N, 2]
-    return dict(success=jnp.mean(tr["success"][-1]),
-                arm_contact=jnp.mean(jnp.max(tr["arm_contact"], axis=0)),
-                arm_contact_steps=jnp.mean(tr["arm_contact"]),
-                final_distance=jnp.mean(dist, 0),
-                episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
+    out = dict(success=jnp.mean(tr["success"][-1]),
+               arm_contact=jnp.mean(jnp.max(tr["arm_contact"], axis=0)),
+               arm_contact_steps=jnp.mean(tr["arm_contact"]),
+               final_distance=jnp.mean(dist, 0),
+               episode_return=jnp.mean(jnp.sum(tr["reward"], 0), 0))
+    if "physics_ok" in tr:
+        faulted = jnp.any(tr["physics_ok"] < 0.5, axis=0)                        # [N]
+        out["physics_fault"] = jnp.mean(faulted.astype(jnp.float32))
+    return out
 
 
 ROLLOUT_DONE, UPDATES_DONE = 0, 1

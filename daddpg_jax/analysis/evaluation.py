@@ -16,7 +16,8 @@ reproduce the ``test_success_rate`` that ``metrics.csv`` logged for that epoch.
 
 Per episode: success = every arm within the threshold at the last step (as in training),
 arm contact = the arms' link capsules came within ``arm_clearance`` at any step, final goal
-distance per arm at the last step.
+distance per arm at the last step, physics fault = the engine froze or diverged at some step
+(``metrics["physics_ok"]`` 0; the trainer logs the same rate as ``test_physics_fault_rate``).
 """
 
 from __future__ import annotations
@@ -108,9 +109,10 @@ def _rollout_fn(policy: Policy, n: int):
     env, act = policy.env, policy.fns.act
 
     def record(s, a, s2):
+        ok = s2.metrics.get("physics_ok", jax.numpy.ones_like(s2.metrics["success"]))
         return dict(success=s2.metrics["success"], arm_contact=s2.metrics["arm_contact"],
                     ag=s2.obs["achieved_goal"], qpos=env.backend.qpos(s2.data),
-                    mocap=env.backend.mocap_pos(s2.data)[:, :2])
+                    mocap=env.backend.mocap_pos(s2.data)[:, :2], physics_ok=ok)
 
     def run(state, key):
         def actors(s, _):
@@ -152,6 +154,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
     elapsed = time.perf_counter() - t0
     success = np.asarray(tr["success"][-1]) > 0.5                       # [N]
     contact = np.max(np.asarray(tr["arm_contact"]), axis=0) > 0.5        # [N]
+    fault = np.min(np.asarray(tr["physics_ok"]), axis=0) < 0.5          # [N]
     dist = np.linalg.norm(np.asarray(tr["ag"][-1]) - np.asarray(goal), axis=-1)  # [N, 2]
     n, k, c = int(episodes), int(success.sum()), int(contact.sum())
     row = _metrics_row(policy.run_dir, policy.step)
@@ -170,6 +173,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
         "final_distance_median": {"left": float(np.median(dist[:, 0])),
                                   "right": float(np.median(dist[:, 1]))},
         "distance_threshold": float(policy.env.config.distance_threshold),
+        "physics_fault_rate": int(fault.sum()) / n, "physics_fault_episodes": int(fault.sum()),
         "eval_seconds": round(elapsed, 3),
     }
     qpos = np.concatenate([np.asarray(first["qpos"])[None], np.asarray(tr["qpos"])], 0)
@@ -184,6 +188,9 @@ def format_summary(s: dict) -> str:
     clo, chi = s["arm_contact_ci95"]
     steps = f", {s['env_steps']:,} env steps" if s.get("env_steps") is not None else ""
     fd, fm = s["final_distance_mean"], s["final_distance_median"]
+    faults = [] if "physics_fault_rate" not in s else [
+        f"physics faults    {s['physics_fault_rate']:.3f}  ({s['physics_fault_episodes']}/"
+        f"{s['episodes']} episodes in which the engine froze or diverged)"]
     return "\n".join([
         f"run {s['run_dir']}",
         f"checkpoint {s['checkpoint']}{steps}; task {s['task']}, algo {s['algo']}, "
@@ -196,6 +203,7 @@ def format_summary(s: dict) -> str:
         f"final goal distance, m (threshold {s['distance_threshold']:g}): "
         f"left mean {fd['left']:.4f} median {fm['left']:.4f}; "
         f"right mean {fd['right']:.4f} median {fm['right']:.4f}",
+        *faults,
     ])
 
 

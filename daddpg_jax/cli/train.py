@@ -5,12 +5,15 @@ Examples
   daddpg-train --task reach --num-envs 2048          # the accelerator-sized run
   daddpg-train --task push --algo maddpg --her final --out runs/push_maddpg
   daddpg-train --resume runs/push_maddpg --epochs 200   # continue to 200 epochs
+  daddpg-train --task push --out runs/push_maddpg --force   # replace that run
   daddpg-train --config runs/push_maddpg/config.json --seed 1   # rerun a recorded config
   daddpg-train --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
   daddpg-train --task pickup --demos 100             # + 100 scripted demonstrations
 (`python experiments/run.py ...` is the same command.)
 
-Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch}.
+Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch},
+checkpoints_best/{epoch} (the best test success). --out must be new or empty (else --resume or
+--force); a resume falls back to the newest readable checkpoint (docs/RELIABILITY.md).
 The per-task preset (docs/TRAINING.md) depends on --num-envs and the device: batch size and
 updates per cycle scale with num_envs so that the replay ratio stays near the HER baselines';
 on an accelerator it also picks MJX physics and cycles per epoch. --set overrides any field.
@@ -89,10 +92,16 @@ def build_parser(device: str | None = None):
     p.add_argument("--physics", choices=PHYSICS, default=None,
                    help="physics engine: auto = MJX on an accelerator, MuJoCo C engine on CPU")
     p.add_argument("--out", default=None,
-                   help="run directory (default runs/<task>_<algo>_s<seed>_<time>)")
+                   help="run directory (default runs/<task>_<algo>_s<seed>_<time>); must be "
+                        "new or empty unless --force")
+    p.add_argument("--force", action="store_true",
+                   help="with --out: delete the run already in that directory (its config.json, "
+                        "metrics.csv, learning_curve.png, checkpoints*) and start a new one "
+                        "(refused for a directory that holds no run)")
     p.add_argument("--resume", metavar="RUN_DIR", default=None,
-                   help="continue the run in RUN_DIR from its latest checkpoint (its "
-                        "config.json is reused; --epochs may raise the total)")
+                   help="continue the run in RUN_DIR from its newest readable checkpoint (its "
+                        "config.json is reused; --epochs may raise the total; a run stopped "
+                        "before its first checkpoint starts again from epoch 0)")
     p.add_argument("--config", metavar="CONFIG_JSON", default=None,
                    help="start a new run from a recorded configuration (RUN/config.json or "
                         "RUN): its training fields and env overrides; flags given with it "
@@ -126,10 +135,37 @@ def _recorded(path: str):
     return cfg, dict(payload.get("env_overrides", {}))
 
 
+def _check_out(path: str, force: bool) -> None:
+    """A new run's directory: new, empty, or (with force) a run to replace; else ConfigError."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ConfigError(f"--out {path}: is a file, not a directory")
+    parent = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise ConfigError(f"--out {path}: {parent} is a file, not a directory")
+    if not os.path.isdir(path) or not os.listdir(path):
+        return
+    from daddpg_jax.running import checkpoint as ckpt
+
+    if not force:
+        what = "a run" if ckpt.is_run_dir(path) else "other files"
+        raise ConfigError(f"--out {path}: directory is not empty (it holds {what}); continue "
+                          f"a run with --resume {path}, replace it with --force, or choose "
+                          "another --out")
+    if not ckpt.is_run_dir(path):
+        raise ConfigError(f"--out {path}: --force replaces only a run (a directory with the "
+                          "config.json of a run), and it holds other files")
+
+
 def resolve(args, parser):
     """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError."""
     if args.resume and args.config:
         raise ConfigError("--resume and --config exclude each other")
+    if args.resume and args.force:
+        raise ConfigError("--resume and --force exclude each other (--force deletes the run)")
+    if args.force and not args.out:
+        raise ConfigError("--force needs --out (the run directory to replace)")
     if args.resume:
         cfg, env_over = _recorded(args.resume)
         for name in ("task", "num_envs", *_FIELD_FLAGS):
@@ -140,7 +176,10 @@ def resolve(args, parser):
         if args.demos is not None and args.demos != cfg.n_demos:
             raise ConfigError(f"--resume: --demos differs from the run's config "
                               f"({cfg.n_demos}); start a new run instead")
-        run_dir = args.resume
+        run_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(
+            os.path.abspath(args.resume))
+        if args.out and os.path.abspath(args.out) != os.path.abspath(run_dir):
+            raise ConfigError("--resume continues the run in its own directory; drop --out")
     elif args.config:
         cfg, env_over = _recorded(args.config)
         if args.task is not None or args.num_envs is not None:
@@ -169,8 +208,13 @@ def resolve(args, parser):
         if cfg.task not in scripted.POLICIES:
             raise ConfigError(f"--demos: task {cfg.task!r} has no scripted controller "
                               f"(available: {', '.join(sorted(scripted.POLICIES))})")
-    run_dir = run_dir or args.out or os.path.join(
-        "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+    from daddpg_jax.running.runner import check_physics_backend
+
+    check_physics_backend(cfg.physics, cfg.num_envs, cfg.n_test_episodes)
+    if run_dir is None:
+        run_dir = args.out or os.path.join(
+            "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+        _check_out(run_dir, args.force)
     return cfg, env_over, run_dir
 
 
@@ -228,7 +272,7 @@ def main(argv=None):
     except ConfigError as e:
         parser.error(str(e))
 
-    from daddpg_jax.running.runner import NonFiniteLoss, train
+    from daddpg_jax.running.runner import CheckpointError, NonFiniteLoss, RunDirError, train
 
     print(f"run dir: {os.path.abspath(run_dir)}")
     print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
@@ -252,10 +296,13 @@ def main(argv=None):
                     progress=bar.cycle if bar else None, on_epoch=on_epoch,
                     command=" ".join(sys.argv), time_budget_s=args.time_budget,
                     update_progress=bar.updates if bar and bar.update_tick else None,
-                    update_tick=bar.update_tick if bar else 0)
+                    update_tick=bar.update_tick if bar else 0, force=args.force)
     except NonFiniteLoss as e:
         print(f"error: {e}", file=sys.stderr)
         return 3
+    except (RunDirError, CheckpointError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"\ninterrupted; resume with: daddpg-train --resume {run_dir}", file=sys.stderr)
         return 130

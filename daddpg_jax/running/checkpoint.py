@@ -7,6 +7,8 @@ resumes with the same networks and normalizers but refills the replay from scrat
 not bit-identical to an uninterrupted run. With the buffer saved, 1 epoch + resume + 1 epoch
 equals a 2-epoch run. Orbax writes to a temporary directory and renames it when complete, so a
 killed run resumes from the last complete checkpoint. The last `keep` checkpoints are kept.
+RUN_DIR/checkpoints_best/{step} holds one more: a copy (without the buffer) of the checkpoint
+with the best test success (`save_best`), renamed into place when complete.
 Demonstration episodes (TrainConfig.n_demos) are never saved: `init` plays the same ones again
 from the seed, and restoring keeps the template's.
 """
@@ -18,6 +20,7 @@ import datetime
 import importlib.metadata
 import json
 import os
+import shutil
 import subprocess
 
 import jax
@@ -26,14 +29,20 @@ import numpy as np
 import orbax.checkpoint as ocp
 from flax import serialization
 
+RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
+             "checkpoints_best")
+"""what a training run writes in its directory"""
 
-def checkpoint_dir(run_dir) -> str:
-    return os.path.join(os.path.abspath(os.fspath(run_dir)), "checkpoints")
+
+def checkpoint_dir(run_dir, best: bool = False) -> str:
+    """RUN_DIR/checkpoints, or with best=True RUN_DIR/checkpoints_best."""
+    name = "checkpoints_best" if best else "checkpoints"
+    return os.path.join(os.path.abspath(os.fspath(run_dir)), name)
 
 
-def _manager(run_dir, keep: int | None = None) -> ocp.CheckpointManager:
+def _manager(run_dir, keep: int | None = None, best: bool = False) -> ocp.CheckpointManager:
     opts = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
-    return ocp.CheckpointManager(checkpoint_dir(run_dir), options=opts)
+    return ocp.CheckpointManager(checkpoint_dir(run_dir, best), options=opts)
 
 
 def _split(state):
@@ -60,16 +69,25 @@ class RunDirError(FileNotFoundError):
     """A directory is not a run directory, or lacks the asked-for checkpoint."""
 
 
-def check_run_dir(run_dir, step: int | None = None) -> list:
-    """Checks that ``run_dir`` is a training run with checkpoint ``step`` (default: any) and
-    returns its checkpoint steps; raises :class:`RunDirError` with a message for the user."""
+class CheckpointError(RuntimeError):
+    """No checkpoint of a run can be read; the message says which and why."""
+
+
+def check_run_dir(run_dir, step: int | None = None, best: bool = False) -> list:
+    """Checks that ``run_dir`` is a training run with checkpoint ``step`` (default: any; with
+    best=True its best checkpoint) and returns its checkpoint steps; raises
+    :class:`RunDirError` with a message for the user."""
     run_dir = os.fspath(run_dir)
     if not os.path.isdir(run_dir):
         raise RunDirError(f"run directory {run_dir!r} does not exist")
     if not os.path.exists(os.path.join(run_dir, "config.json")):
         raise RunDirError(f"{run_dir!r} has no config.json: not a training run directory "
                           "(written by experiments/run.py)")
-    steps = all_steps(run_dir)
+    steps = all_steps(run_dir, best)
+    if not steps and best:
+        raise RunDirError(f"run {run_dir!r} has no best checkpoint under "
+                          f"{checkpoint_dir(run_dir, best)} (runs keep one since best "
+                          "checkpoints were introduced; export the latest one instead)")
     if not steps:
         raise RunDirError(f"run {run_dir!r} has no checkpoint under {checkpoint_dir(run_dir)} "
                           "(a run writes one at the end of each epoch)")
@@ -78,42 +96,163 @@ def check_run_dir(run_dir, step: int | None = None) -> list:
     return steps
 
 
-def all_steps(run_dir):
-    if not os.path.isdir(checkpoint_dir(run_dir)):
+def all_steps(run_dir, best: bool = False):
+    """The complete checkpoints' steps (best=True: of checkpoints_best/), ascending."""
+    if not os.path.isdir(checkpoint_dir(run_dir, best)):
         return []
-    with _manager(run_dir) as mngr:
+    with _manager(run_dir, best=best) as mngr:
         return sorted(mngr.all_steps())
 
 
-def latest_step(run_dir) -> int | None:
-    steps = all_steps(run_dir)
+def latest_step(run_dir, best: bool = False) -> int | None:
+    steps = all_steps(run_dir, best)
     return steps[-1] if steps else None
 
 
-def has_buffer(run_dir, step: int) -> bool:
-    return os.path.isdir(os.path.join(checkpoint_dir(run_dir), str(int(step)), "buffer"))
+def step_dir(run_dir, step: int, best: bool = False) -> str:
+    return os.path.join(checkpoint_dir(run_dir, best), str(int(step)))
 
 
-def restore(run_dir, template, step: int | None = None, restore_buffer: bool | None = None):
+def has_buffer(run_dir, step: int, best: bool = False) -> bool:
+    return os.path.isdir(os.path.join(step_dir(run_dir, step, best), "buffer"))
+
+
+def save_best(run_dir, step: int) -> str:
+    """Makes checkpoint `step` the best one: copies RUN_DIR/checkpoints/{step} (without the
+    replay buffer) to a temporary name in checkpoints_best/, renames it into place, then deletes
+    the other best checkpoints. A kill at any moment leaves the previous best or the new one
+    complete (and maybe a temporary copy, which `remove_partial` deletes)."""
+    src = step_dir(run_dir, step)
+    if not os.path.isdir(src):
+        raise FileNotFoundError(f"no checkpoint {step} under {checkpoint_dir(run_dir)}")
+    best_dir = checkpoint_dir(run_dir, best=True)
+    os.makedirs(best_dir, exist_ok=True)
+    tmp = os.path.join(best_dir, f"{_COPY_PREFIX}{int(step)}")
+    if os.path.exists(tmp):
+        shutil.rmtree(tmp)
+    shutil.copytree(src, tmp, ignore=shutil.ignore_patterns("buffer"))
+    dst = step_dir(run_dir, step, best=True)
+    if os.path.exists(dst):
+        shutil.rmtree(dst)
+    os.rename(tmp, dst)
+    remove_steps(run_dir, [s for s in all_steps(run_dir, best=True) if s != int(step)],
+                 best=True)
+    return dst
+
+
+_COPY_PREFIX = ".copy-"
+_ORBAX_TMP = ".orbax-checkpoint-tmp"
+
+
+def remove_partial(run_dir) -> list:
+    """Deletes what a killed save leaves behind (orbax's temporary directories, a partial copy
+    of `save_best`) in checkpoints/ and checkpoints_best/. Returns the paths deleted."""
+    gone = []
+    for best in (False, True):
+        d = checkpoint_dir(run_dir, best)
+        if not os.path.isdir(d):
+            continue
+        for name in sorted(os.listdir(d)):
+            if _ORBAX_TMP in name or name.startswith(_COPY_PREFIX):
+                shutil.rmtree(os.path.join(d, name), ignore_errors=True)
+                gone.append(os.path.join(d, name))
+    return gone
+
+
+def remove_steps(run_dir, steps, best: bool = False) -> None:
+    """Deletes checkpoints `steps` (best=True: of checkpoints_best/)."""
+    for s in steps:
+        shutil.rmtree(step_dir(run_dir, s, best), ignore_errors=True)
+
+
+def is_run_dir(path) -> bool:
+    """Whether `path` is a directory holding a training run: a config.json written by
+    `save_config`, or (a run without one) a metrics.csv with the runner's header."""
+    try:
+        with open(os.path.join(path, "config.json")) as f:
+            payload = json.load(f)
+        return isinstance(payload, dict) and "config" in payload and "versions" in payload
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError):
+        return False
+    try:
+        with open(os.path.join(path, "metrics.csv")) as f:
+            return f.readline().startswith("epoch,env_steps,")
+    except OSError:
+        return False
+
+
+def remove_run_files(run_dir) -> None:
+    """Deletes what a training run writes in `run_dir` (RUN_FILES and their temporary files);
+    other files stay."""
+    for name in RUN_FILES + ("config.json.tmp", "metrics.csv.tmp", "learning_curve.tmp.png"):
+        p = os.path.join(run_dir, name)
+        if os.path.isdir(p) and not os.path.islink(p):
+            shutil.rmtree(p)
+        elif os.path.lexists(p):
+            os.remove(p)
+
+
+def wipe_run(run_dir) -> None:
+    """Deletes the run in `run_dir` (`remove_run_files`), for a new run in its place; refuses
+    a non-empty directory that holds no run."""
+    if not os.path.isdir(run_dir) or not os.listdir(run_dir):
+        return
+    if not is_run_dir(run_dir):
+        raise RunDirError(f"{run_dir!r} is not a training run directory (no config.json "
+                          "written by a run): not deleting anything in it")
+    remove_run_files(run_dir)
+
+
+def verify(run_dir, step: int, best: bool = False) -> None:
+    """Reads every array of checkpoint `step` once (TensorStore, synchronously) and parses its
+    metadata; raises the first error (e.g. ValueError 'OUT_OF_RANGE: Error reading ...' for a
+    truncated data file). `restore` would fail on the same checkpoint, but from inside orbax's
+    concurrent reads, whose other failures then print pages of tracebacks."""
+    import tensorstore as ts
+
+    d = step_dir(run_dir, step, best)
+    with open(os.path.join(d, "_CHECKPOINT_METADATA")) as f:
+        json.load(f)
+    for item in ("state", "buffer"):
+        path = os.path.join(d, item)
+        if not os.path.isdir(path):
+            continue
+        with open(os.path.join(path, "_METADATA")) as f:
+            json.load(f)
+        if not os.path.exists(os.path.join(path, "manifest.ocdbt")):
+            continue   # not an OCDBT checkpoint: restore() reads it
+        base = {"driver": "ocdbt", "base": {"driver": "file", "path": path + os.sep}}
+        keys = ts.KvStore.open(base).result().list().result()
+        for k in keys:
+            if k.endswith(b"/.zarray"):
+                spec = {"driver": "zarr", "kvstore": {**base, "path": k[:-len(".zarray")].decode()}}
+                ts.open(spec, open=True).result().read().result()
+
+
+def restore(run_dir, template, step: int | None = None, restore_buffer: bool | None = None,
+            best: bool = False):
     """Restores checkpoint `step` (default: latest) into the structure of `template` (a TrainState
     from `init`, which fixes shapes, dtypes and shardings). restore_buffer=None restores the
-    buffer when the checkpoint has one; otherwise the template's buffer is kept.
+    buffer when the checkpoint has one; otherwise the template's buffer is kept. best=True
+    reads checkpoints_best/ (the checkpoint with the best test success; no buffer).
     Returns (state, step)."""
     if step is None:
-        step = latest_step(run_dir)
+        step = latest_step(run_dir, best)
         if step is None:
-            raise FileNotFoundError(f"no checkpoint under {checkpoint_dir(run_dir)}")
+            raise FileNotFoundError(f"no checkpoint under {checkpoint_dir(run_dir, best)}")
     step = int(step)
     if restore_buffer is None:
-        restore_buffer = has_buffer(run_dir, step)
-    elif restore_buffer and not has_buffer(run_dir, step):
+        restore_buffer = has_buffer(run_dir, step, best)
+    elif restore_buffer and not has_buffer(run_dir, step, best):
         raise FileNotFoundError(f"checkpoint {step} was saved without the replay buffer")
     tree, buffer = _split(template)
     abstract = lambda t: jax.tree.map(ocp.utils.to_shape_dtype_struct, t)
     items = {"state": ocp.args.StandardRestore(abstract(tree))}
     if restore_buffer:
         items["buffer"] = ocp.args.StandardRestore(abstract(buffer))
-    with _manager(run_dir) as mngr:
+    with _manager(run_dir, best=best) as mngr:
         out = mngr.restore(step, args=ocp.args.Composite(**items))
     full = dict(out["state"])
     if restore_buffer:
@@ -164,9 +303,19 @@ def save_config(run_dir, cfg, **extra) -> str:
         **extra,
     )
     path = os.path.join(run_dir, "config.json")
-    with open(path, "w") as f:
-        json.dump(payload, f, indent=2, sort_keys=True)
+    write_atomic(path, json.dumps(payload, indent=2, sort_keys=True))
     return path
+
+
+def write_atomic(path, text: str) -> None:
+    """Writes `text` to `path` through a temporary file and os.replace: a kill at any moment
+    leaves the old file or the new one, never a part."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", newline="") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
 
 
 def load_config(run_dir):

@@ -5,6 +5,7 @@ JAX side of the deployment path (``daddpg_jax/deploy/`` is the NumPy side)::
     from daddpg_jax.running.export import export_run
     export_run("runs/reach", "policy.npz")            # latest checkpoint
     export_run("runs/reach", "policy.npz", step=2)    # a given checkpoint
+    export_run("runs/reach", "policy.npz", best=True) # the best test success
 
 File contents (``daddpg_jax.deploy.FORMAT_VERSION`` 1; every array float32, no pickled
 objects):
@@ -148,8 +149,10 @@ def export_state(state, cfg, env, out, source: dict | None = None) -> str:
     return write_npz(policy_arrays(state, cfg, env, source), out)
 
 
-def export_run(run_dir, out, step: int | None = None) -> str:
-    """Exports checkpoint ``step`` (default: latest) of the run in ``run_dir`` to ``out``.
+def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str:
+    """Exports checkpoint ``step`` (default: latest) of the run in ``run_dir`` to ``out``;
+    best=True exports the run's best checkpoint (``checkpoints_best/``, the epoch with the best
+    test success) instead.
 
     Raises ExportError with a clear message when the run has no config or no checkpoint.
     """
@@ -160,8 +163,10 @@ def export_run(run_dir, out, step: int | None = None) -> str:
     from daddpg_jax.running.runner import make_env
 
     run_dir = os.fspath(run_dir)
+    if best and step is not None:
+        raise ExportError("give a checkpoint step or best, not both")
     try:
-        ckpt.check_run_dir(run_dir, step)
+        ckpt.check_run_dir(run_dir, step, best=best)
     except ckpt.RunDirError as e:
         raise ExportError(str(e)) from None
     cfg, payload = ckpt.load_config(run_dir)
@@ -169,8 +174,8 @@ def export_run(run_dir, out, step: int | None = None) -> str:
     fns = make_train_fns(env, cfg)
     # abstract template: shapes only, so the (large) replay buffer is never allocated
     template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
-    state, used = ckpt.restore(run_dir, template, step, restore_buffer=False)
-    source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used),
+    state, used = ckpt.restore(run_dir, template, step, restore_buffer=False, best=best)
+    source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used), best=bool(best),
                   git_revision=payload.get("git_revision"),
                   env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict())
     return export_state(state, cfg, env, out, source)

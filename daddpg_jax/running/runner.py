@@ -9,13 +9,24 @@ RUN_DIR layout::
     metrics.csv          one row per epoch (columns: METRIC_COLUMNS)
     learning_curve.png   test success vs env steps
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
+    checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
+                         without the replay buffer
+
+Crash safety (docs/RELIABILITY.md, "Training runs"): after each epoch metrics.csv is rewritten
+whole through a temporary file and ``os.replace``, then the checkpoint is saved (orbax renames
+it into place when complete), then the best checkpoint is updated. A resume restores the newest
+complete checkpoint that can be read (warning about and deleting newer unreadable ones), drops
+the CSV rows of later epochs and makes checkpoints_best/ agree with the CSV; a run directory
+without any complete checkpoint starts again from epoch 0.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,23 +38,37 @@ import numpy as np
 from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.running import checkpoint as ckpt
+from mjx_envs.schema import ConfigError
 
 METRIC_COLUMNS = (
     "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
     "test_final_distance_left", "test_final_distance_right", "train_success_rate",
     "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
     "updates_per_s", "bc_loss", "q_filter_pass", "rollout_time", "update_time", "eval_time",
+    "train_physics_fault_rate", "test_physics_fault_rate",
 )
 """Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
 rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
 rollout_time, update_time and eval_time split the epoch's seconds: the rollouts, the updates
 (with buffer insert and normalizer update), and the evaluation after the epoch (rollout and
-update times are NaN on several devices). CSVs written before a column existed lack it and are
-rewritten with it (blank) on --resume."""
+update times are NaN on several devices). train_/test_physics_fault_rate: the fraction of the
+epoch's training / test episodes with a step whose ``metrics["physics_ok"]`` is 0 (the engine
+froze or diverged; NaN for an env that does not report it). CSVs written before a column
+existed lack it and are rewritten with it (blank) on --resume."""
+
+PHYSICS_FAULT_WARN = 0.01
+"""an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
+
+MJX_CPU_MAX_BATCH = 256
+"""MJX on a CPU hangs at this many envs (or test episodes) or more; refused before compiling"""
 
 
 class NonFiniteLoss(RuntimeError):
     """Raised when a loss became NaN/inf; the last good checkpoint is kept."""
+
+
+RunDirError = ckpt.RunDirError
+CheckpointError = ckpt.CheckpointError
 
 
 @dataclass
@@ -60,24 +85,50 @@ class RunResult:
                 f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}")
 
 
+def warn(msg: str) -> None:
+    """One line on stderr."""
+    print(f"warning: {msg}", file=sys.stderr, flush=True)
+
+
 def _read_rows(path) -> list[dict]:
+    """metrics.csv's rows; a torn row (cut short by a kill while an older version appended it)
+    is left out."""
     if not os.path.exists(path):
         return []
     with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+        rows = list(csv.DictReader(f))
+    good = []
+    for r in rows:
+        try:
+            int(r["epoch"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        if None not in r and None not in r.values():
+            good.append(r)
+    return good
 
 
-def _append_row(path, row: dict) -> None:
-    new = not os.path.exists(path)
-    with open(path, "a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
-        if new:
-            w.writeheader()
+def _write_rows(path, rows: list[dict]) -> None:
+    """Rewrites metrics.csv whole through a temporary file and os.replace: a kill at any moment
+    leaves the old file or the new one."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, lineterminator="\r\n")
+    w.writeheader()
+    for row in rows:
         w.writerow({k: row.get(k, "") for k in METRIC_COLUMNS})
+    ckpt.write_atomic(path, buf.getvalue())
 
 
 def _scalar(x) -> float:
     return float(np.mean(np.asarray(x)))
+
+
+def _success(row) -> float:
+    try:
+        v = float(row["test_success_rate"])
+    except (KeyError, TypeError, ValueError):
+        return math.nan
+    return v
 
 
 def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
@@ -86,14 +137,59 @@ def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
     return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
 
 
+def check_physics_backend(physics: str | None, num_envs: int, n_test_episodes: int,
+                          backend: str | None = None) -> None:
+    """Raises ConfigError for MJX physics on a CPU at MJX_CPU_MAX_BATCH envs or test episodes
+    or more: such a run hangs inside XLA's batched Cholesky factorization (docs/RELIABILITY.md),
+    so it is refused before anything compiles."""
+    backend = backend or jax.default_backend()
+    if physics != "mjx" or backend != "cpu":
+        return
+    for name, n in (("num_envs", num_envs), ("n_test_episodes", n_test_episodes)):
+        if n >= MJX_CPU_MAX_BATCH:
+            raise ConfigError(
+                f"physics 'mjx' on a CPU with {name}={n}: MJX at {MJX_CPU_MAX_BATCH} or more "
+                "envs per batch hangs on a CPU (a deadlock inside XLA's batched Cholesky "
+                "factorization; docs/RELIABILITY.md); use --physics c (the MuJoCo C engine, "
+                f"the CPU default) or fewer than {MJX_CPU_MAX_BATCH} envs and test episodes")
+
+
+@dataclass
+class _Log:
+    """What a run has written: its CSV rows, the best test success among them (the one in
+    checkpoints_best/), and the wall time of the epochs before this call."""
+    run_dir: str
+    rows: list
+    best: float = -math.inf
+    wall_offset: float = 0.0
+
+    @property
+    def epoch(self) -> int:
+        return int(self.rows[-1]["epoch"]) if self.rows else 0
+
+    def commit(self, cfg: TrainConfig, state, row: dict) -> None:
+        """The end of an epoch: CSV row (atomic rewrite), checkpoint, then the best one."""
+        self.rows.append(row)
+        _write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
+        epoch = int(row["epoch"])
+        ckpt.save(self.run_dir, state, epoch, save_buffer=cfg.save_buffer,
+                  keep=cfg.keep_checkpoints)
+        if _success(row) > self.best:
+            ckpt.save_best(self.run_dir, epoch)
+            self.best = _success(row)
+
+
 def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
           resume: bool = False, progress: Callable[[dict], None] | None = None,
           on_epoch: Callable[[dict], None] | None = None, plot: bool = True,
           command: str | None = None, time_budget_s: float | None = None,
           env: Any = None, update_progress: Callable[[int], None] | None = None,
-          update_tick: int = 0, demo_policy: Callable | None = None) -> RunResult:
+          update_tick: int = 0, demo_policy: Callable | None = None,
+          force: bool = False) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
+    resume: continue the run in ``run_dir`` (see the module docstring); else ``run_dir`` must
+    hold no checkpoint (RunDirError) unless force=True, which deletes the run there first.
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
     on_epoch: called with each epoch's CSV row after it is written.
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
@@ -103,8 +199,9 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     scripted controller; see ``make_train_fns``).
     """
     env_overrides = dict(env_overrides or {})
-    os.makedirs(run_dir, exist_ok=True)
-    metrics_path = os.path.join(run_dir, "metrics.csv")
+    check_physics_backend(cfg.physics if env is None else getattr(env, "physics", None),
+                          cfg.num_envs, cfg.n_test_episodes)
+    _prepare_run_dir(run_dir, resume, force)
     env = env if env is not None else make_env(cfg, env_overrides)
 
     from daddpg_jax.algo.train import StageClock, make_train_fns
@@ -115,75 +212,209 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     if fns.num_devices > 1:
         clock = None
     state = fns.init(jax.random.PRNGKey(cfg.seed))
-    rows, start_epoch, wall_offset = [], 0, 0.0
     if resume:
-        state, start_epoch, rows, wall_offset = _resume(run_dir, state)
+        state, log = _resume(run_dir, state)
     else:
-        if os.path.exists(metrics_path):
-            os.remove(metrics_path)
+        log = _Log(run_dir, [])
         ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
                          env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
                          command=command, num_agents=variants.get(cfg.algo).num_agents,
                          physics_resolved=getattr(env, "physics", None))
-
     t_start = time.perf_counter()
-    last = rows[-1] if rows else None
-    epoch = start_epoch
+    epoch = log.epoch
     while epoch < cfg.n_epochs:
-        t0 = time.perf_counter()
-        if clock is not None:
-            clock.start()
-        state, m = fns.train_epoch(state)
-        m = jax.device_get(m)
-        dt = time.perf_counter() - t0
-        if bool(np.any(m["nonfinite"])):
-            raise NonFiniteLoss(
-                f"non-finite loss in epoch {epoch + 1}; stopping. The last good checkpoint "
-                f"(epoch {ckpt.latest_step(run_dir)}) is kept in {ckpt.checkpoint_dir(run_dir)}.")
+        state, row = _train_epoch(cfg, env, fns, state, clock, epoch, run_dir,
+                                  t_start - log.wall_offset)
         epoch += 1
-        t_ev = time.perf_counter()
-        ev = jax.device_get(fns.evaluate(state))
-        row = _epoch_row(cfg, env, epoch, fns.env_steps(state), int(state.updates),
-                         round(wall_offset + time.perf_counter() - t_start, 3), ev, m, dt)
-        row.update(rollout_time=clock.rollout_s if clock else math.nan,
-                   update_time=clock.update_s if clock else math.nan,
-                   eval_time=time.perf_counter() - t_ev)
-        _append_row(metrics_path, row)
-        ckpt.save(run_dir, state, epoch, save_buffer=cfg.save_buffer, keep=cfg.keep_checkpoints)
-        rows.append(row)
-        last = row
+        log.commit(cfg, state, row)
+        _warn_physics_faults(row)
         if plot:
-            from daddpg_jax.analysis.plotting import plot_learning_curve
-
-            plot_learning_curve(rows, os.path.join(run_dir, "learning_curve.png"),
-                                title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs")
+            _plot(cfg, run_dir, log.rows)
         if on_epoch is not None:
             on_epoch(row)
         if time_budget_s is not None and time.perf_counter() - t_start >= time_budget_s:
             break
-    if last is None:
-        return RunResult(run_dir, epoch, fns.env_steps(state), wall_offset, math.nan, rows)
+    if not log.rows:
+        return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [])
+    last = log.rows[-1]
     return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
-                     float(last["wall_time"]), float(last["test_success_rate"]), rows)
+                     float(last["wall_time"]), float(last["test_success_rate"]), log.rows)
 
 
-def _resume(run_dir: str, state):
-    """(state restored from the latest checkpoint, its epoch, the CSV rows up to it, their
-    wall time); metrics.csv is rewritten without rows of epochs after the checkpoint (a crash
-    between the CSV write and the checkpoint)."""
+def _train_epoch(cfg: TrainConfig, env, fns, state, clock, epoch: int, run_dir: str,
+                 t_zero: float):
+    """Epoch `epoch + 1`: (state after it, its CSV row); t_zero: the run's start on the
+    perf_counter clock (earlier epochs included)."""
+    t0 = time.perf_counter()
+    if clock is not None:
+        clock.start()
+    state, m = fns.train_epoch(state)
+    m = jax.device_get(m)
+    dt = time.perf_counter() - t0
+    if bool(np.any(m["nonfinite"])):
+        raise NonFiniteLoss(_nonfinite_message(run_dir, epoch + 1))
+    t_ev = time.perf_counter()
+    ev = jax.device_get(fns.evaluate(state))
+    row = _epoch_row(cfg, env, epoch + 1, fns.env_steps(state), int(state.updates),
+                     round(time.perf_counter() - t_zero, 3), ev, m, dt)
+    row.update(rollout_time=clock.rollout_s if clock else math.nan,
+               update_time=clock.update_s if clock else math.nan,
+               eval_time=time.perf_counter() - t_ev)
+    return state, row
+
+
+def _plot(cfg: TrainConfig, run_dir: str, rows: list) -> None:
+    """learning_curve.png, written to a temporary file and renamed (never torn by a kill)."""
+    from daddpg_jax.analysis.plotting import plot_learning_curve
+
+    tmp = os.path.join(run_dir, "learning_curve.tmp.png")
+    plot_learning_curve(rows, tmp, title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs")
+    os.replace(tmp, os.path.join(run_dir, "learning_curve.png"))
+
+
+def _nonfinite_message(run_dir: str, epoch: int) -> str:
+    last = ckpt.latest_step(run_dir)
+    if last is None:
+        return (f"non-finite loss in epoch {epoch}; stopping. No checkpoint was written: the "
+                "run had not finished an epoch.")
+    return (f"non-finite loss in epoch {epoch}; stopping. The last good checkpoint "
+            f"(epoch {last}) is kept in {ckpt.checkpoint_dir(run_dir)}.")
+
+
+def _warn_physics_faults(row: dict) -> None:
+    rates = {k: float(row[f"{k}_physics_fault_rate"]) for k in ("train", "test")}
+    if any(v > PHYSICS_FAULT_WARN for v in rates.values()):   # NaN (not reported): no warning
+        warn(f"epoch {row['epoch']}: physics faults in {rates['train']:.1%} of the training "
+             f"and {rates['test']:.1%} of the test episodes (above {PHYSICS_FAULT_WARN:.0%}): "
+             "the engine froze or diverged there (e.g. MuJoCo's 'Nan, Inf or huge value in "
+             "QACC'), and those episodes are still learned from; check the env settings "
+             "(timestep, n_substeps, max_delta)")
+
+
+def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
+    """Checks run_dir before anything compiles; with force deletes the run in it."""
+    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+        raise RunDirError(f"{run_dir!r} is a file, not a run directory")
+    if resume:
+        if force:
+            raise ValueError("resume and force exclude each other")
+        if not os.path.exists(os.path.join(run_dir, "config.json")):
+            raise RunDirError(f"{run_dir!r} has no config.json: not a training run directory "
+                              "(nothing to resume)")
+        return
+    if force:
+        ckpt.wipe_run(run_dir)
+    else:
+        steps = ckpt.all_steps(run_dir) or ckpt.all_steps(run_dir, best=True)
+        if steps:
+            raise RunDirError(f"{run_dir!r} already holds a run (checkpoints {steps}); resume "
+                              "it, or delete it first (force=True, daddpg-train --force)")
+        ckpt.remove_run_files(run_dir)   # leftovers of a run killed in its first epoch
+    os.makedirs(run_dir, exist_ok=True)
+
+
+def _restore_newest_readable(run_dir: str, template, steps: list):
+    """(state, step) of the newest of `steps` that restores, and the [(step, error)] of the
+    newer ones that did not (each warned about)."""
+    bad = []
+    for step in reversed(steps):
+        try:
+            ckpt.verify(run_dir, step)
+            state, step = ckpt.restore(run_dir, template, step)
+            return state, step, bad
+        except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
+            _quiet_failed_reads()
+            why = _root_cause(e)
+            warn(f"checkpoint {step} ({ckpt.step_dir(run_dir, step)}) cannot be read "
+                 f"({why}); trying an older one")
+            bad.append((step, why))
+    return None, None, bad
+
+
+def _root_cause(e: BaseException, width: int = 200) -> str:
+    """'Type: first line' of the innermost exception of e's chain (TensorStore's reason)."""
+    while (e.__cause__ or e.__context__) is not None:
+        e = e.__cause__ or e.__context__
+    lines = str(e).strip().splitlines()
+    text = f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def _quiet_failed_reads() -> None:
+    """After a failed restore, orbax's other reads of that checkpoint fail too, and Python
+    prints each as 'Exception ignored in: <coroutine ...>' with a long traceback when it
+    collects them (at exit); the warning already said it. Drops those, nothing else."""
+    prev = sys.unraisablehook
+    if getattr(prev, "_daddpg_quiet", False):
+        return
+
+    def hook(u):
+        name = getattr(getattr(u.object, "cr_code", None), "co_filename", "")
+        if "orbax" in name or "tensorstore" in name:
+            return
+        prev(u)
+
+    hook._daddpg_quiet = True
+    sys.unraisablehook = hook
+
+
+def _resume(run_dir: str, template):
+    """(state restored from the newest readable checkpoint, its _Log). metrics.csv is rewritten
+    without the rows of later epochs (a kill between the CSV write and the checkpoint, or an
+    unreadable checkpoint), newer unreadable checkpoints are deleted, and checkpoints_best/ is
+    made to agree with the CSV. No complete checkpoint: warns and starts from epoch 0."""
     metrics_path = os.path.join(run_dir, "metrics.csv")
+    ckpt.remove_partial(run_dir)
     rows = _read_rows(metrics_path)
-    step = ckpt.latest_step(run_dir)
-    if step is None:
-        raise FileNotFoundError(f"--resume: no checkpoint in {ckpt.checkpoint_dir(run_dir)}")
-    state, start_epoch = ckpt.restore(run_dir, state, step)
-    rows = [r for r in rows if int(r["epoch"]) <= start_epoch]
-    if os.path.exists(metrics_path):
-        os.remove(metrics_path)
-    for r in rows:
-        _append_row(metrics_path, r)
-    wall_offset = float(rows[-1]["wall_time"]) if rows else 0.0
-    return state, start_epoch, rows, wall_offset
+    steps = ckpt.all_steps(run_dir)
+    if not steps:
+        warn(f"{run_dir} has no complete checkpoint (the run was stopped during its first "
+             "epoch); starting it again from epoch 0")
+        ckpt.remove_steps(run_dir, ckpt.all_steps(run_dir, best=True), best=True)
+        _write_rows(metrics_path, [])
+        return template, _Log(run_dir, [])
+    state, step, bad = _restore_newest_readable(run_dir, template, steps)
+    if state is None:
+        raise CheckpointError(
+            f"no checkpoint of {run_dir} can be read (tried {', '.join(str(s) for s, _ in bad)};"
+            f" newest: {bad[0][1]}); if --set changed a field that fixes array shapes "
+            "(hidden, buffer_size, ...), resume without it, else start the run again with "
+            "--force")
+    if bad:
+        warn(f"resuming from checkpoint {step}; deleting the unreadable checkpoint(s) "
+             f"{', '.join(str(s) for s, _ in bad)}")
+        ckpt.remove_steps(run_dir, [s for s, _ in bad])
+    rows = [r for r in rows if int(r["epoch"]) <= step]
+    _write_rows(metrics_path, rows)
+    log = _Log(run_dir, rows, wall_offset=float(rows[-1]["wall_time"]) if rows else 0.0)
+    log.best = _reconcile_best(run_dir, rows)
+    return state, log
+
+
+def _reconcile_best(run_dir: str, rows: list) -> float:
+    """Makes checkpoints_best/ hold the checkpoint of the CSV row with the best test success
+    (earliest of ties), copying it from checkpoints/ if a kill came before the copy; if it is
+    on disk nowhere, the best one that is (with a warning). Returns its test success."""
+    cands = sorted(((_success(r), int(r["epoch"])) for r in rows if not math.isnan(_success(r))),
+                   key=lambda c: (-c[0], c[1]))
+    best_steps = set(ckpt.all_steps(run_dir, best=True))
+    main_steps = set(ckpt.all_steps(run_dir))
+    for i, (value, epoch) in enumerate(cands):
+        if epoch not in best_steps and epoch not in main_steps:
+            continue
+        if epoch not in best_steps:
+            ckpt.save_best(run_dir, epoch)
+        ckpt.remove_steps(run_dir, best_steps - {epoch}, best=True)
+        if i > 0:
+            warn(f"the best checkpoint (epoch {cands[0][1]}, test success {cands[0][0]:.3f}) "
+                 f"is not on disk; epoch {epoch} (test success {value:.3f}) is kept as the "
+                 "best one instead")
+        return value
+    ckpt.remove_steps(run_dir, best_steps, best=True)
+    if cands:
+        warn(f"the best checkpoint (epoch {cands[0][1]}) is not on disk, nor any other epoch "
+             "of metrics.csv; the next epochs start the best checkpoint again")
+    return -math.inf
 
 
 def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, wall: float,
@@ -204,6 +435,10 @@ def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, 
         "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
         "bc_loss": _scalar(m["bc_loss"]) if "bc_loss" in m else math.nan,
         "q_filter_pass": _scalar(m["q_filter_pass"]) if "q_filter_pass" in m else math.nan,
+        "train_physics_fault_rate":
+            _scalar(m["physics_fault"]) if "physics_fault" in m else math.nan,
+        "test_physics_fault_rate":
+            _scalar(ev["physics_fault"]) if "physics_fault" in ev else math.nan,
     }
 
 
