@@ -123,3 +123,11 @@ def test_video(run_dir, tmp_path):
         assert 50 < len(frames) <= 2 * (50 + 1 + 12)
     assert np.asarray(frames[0]).shape[:2] == (120, 160)
     assert np.asarray(frames[0]).std() > 5  # not a blank image
+
+
+def test_cli_refuses_mjx_on_cpu_at_large_batches(run_dir, capsys):
+    from daddpg_jax.cli import evaluate as evaluate_cli
+
+    assert evaluate_cli.main([run_dir, "--physics", "mjx", "--episodes", "256"]) == 2
+    err = capsys.readouterr().err
+    assert "hangs on a CPU" in err and "--physics c" in err

@@ -58,6 +58,14 @@ def main(argv=None) -> int:
     except evaluation.NoCheckpointError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    from daddpg_jax.running.runner import check_physics_backend
+    from mjx_envs.schema import ConfigError
+
+    try:   # MJX on a CPU hangs at large batches: refuse before compiling
+        check_physics_backend(policy.env.physics, 1, args.episodes)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
     if args.video:
         try:
