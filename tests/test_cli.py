@@ -182,3 +182,18 @@ def test_console_script_is_installed():
     assert exe, "pip install -e . creates the console scripts"
     out = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "training fields for --set" in out.stdout
+
+
+def test_unexpected_errors_are_one_line_unless_debug(tmp_path, capsys, monkeypatch):
+    from daddpg_jax.running import runner
+
+    def broken(*a, **k):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(runner, "train", broken)
+    argv = ["--task", "reach", "--no-progress", "--out", str(tmp_path / "r")]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "error: RuntimeError: disk on fire" in err and len(err.strip().splitlines()) == 1
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        cli.main(argv + ["--debug"])

@@ -121,6 +121,8 @@ def build_parser(device: str | None = None):
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="stop after the epoch during which this much wall time has passed")
     p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
+    p.add_argument("--debug", action="store_true",
+                   help="show the traceback of an unexpected error (default: one line)")
     return p
 
 
@@ -306,6 +308,12 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"\ninterrupted; resume with: daddpg-train --resume {run_dir}", file=sys.stderr)
         return 130
+    except Exception as e:   # noqa: BLE001  (one line unless --debug)
+        if args.debug:
+            raise
+        print(f"error: {type(e).__name__}: {e} (rerun with --debug for the traceback; "
+              f"resume with: daddpg-train --resume {run_dir})", file=sys.stderr)
+        return 1
     finally:
         if bar is not None:
             bar.close()
