@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-from mjx_envs.settings import TASKS, default_config  # noqa: F401  (JAX-free)
+from mjx_envs.settings import PHYSICS, TASKS, default_config  # noqa: F401  (JAX-free)
 
 if TYPE_CHECKING:
     from mjx_envs.core import DualArmEnv
@@ -73,7 +73,7 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
     if task not in _REGISTRY:
         known = sorted(_REGISTRY)
         raise ValueError(f"unknown task {task!r}; available: {known}")
-    if physics not in ("auto", "mjx", "c"):
+    if physics not in PHYSICS:
         raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
     from mjx_envs.settings import replace_config
 

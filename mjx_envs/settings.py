@@ -15,6 +15,9 @@ import dataclasses
 from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
 
 TASKS = ("reach", "push", "pickup", "pot")
+PHYSICS = ("auto", "mjx", "c")
+"""physics backends: auto = MJX on an accelerator, MuJoCo's C engine on a CPU"""
+ENGINES = PHYSICS[1:]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,11 +14,10 @@ import math
 from daddpg_jax.algo.variants import ALGOS
 from daddpg_jax.algo.variants import get as get_variant
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
-from mjx_envs.settings import TASKS
+from mjx_envs.settings import PHYSICS, TASKS  # noqa: F401  (PHYSICS re-exported)
 
 HER_MODES = ("future", "final", "none")
 OTHER_ACTIONS = ("buffer", "policy")
-PHYSICS = ("auto", "mjx", "c")
 
 
 @dataclasses.dataclass(frozen=True)

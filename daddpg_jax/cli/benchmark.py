@@ -26,7 +26,7 @@ import time
 
 from daddpg_jax.algo.config import DEVICES, TrainConfig, current_device, preset
 from mjx_envs import schema, settings
-from mjx_envs.settings import TASKS
+from mjx_envs.settings import ENGINES, TASKS
 
 CPU_SIZES = [1, 64, 256]
 CPU_TRAIN_SIZES = [2, 16]
@@ -37,13 +37,13 @@ def build_parser():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", nargs="+", default=["reach"], choices=TASKS,
                    help="tasks to measure")
-    p.add_argument("--physics", nargs="+", default=["c", "mjx"], choices=["c", "mjx"],
+    p.add_argument("--physics", nargs="+", default=sorted(ENGINES), choices=ENGINES,
                    help="physics engines to measure")
     p.add_argument("--mode", choices=["env", "train", "all"], default="all",
                    help="env-only throughput, training throughput, or both (default)")
     p.add_argument("--sizes", nargs="+", type=int, default=None,
                    help=f"num_envs values (default: env {CPU_SIZES}, train {CPU_TRAIN_SIZES})")
-    p.add_argument("--train-physics", nargs="+", default=None, choices=["c", "mjx"],
+    p.add_argument("--train-physics", nargs="+", default=None, choices=ENGINES,
                    help="engines for --mode train/all (default: --physics; on a CPU only 'c', "
                         "since MJX training programs take minutes to compile there)")
     p.add_argument("--steps", type=int, default=50,

@@ -19,6 +19,8 @@ import json
 import os
 import sys
 
+from mjx_envs.settings import PHYSICS
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
@@ -31,7 +33,7 @@ def build_parser():
     p.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
     p.add_argument("--seed", type=int, default=None,
                    help="seed of the evaluation episodes (default: the run's eval_seed)")
-    p.add_argument("--physics", choices=["auto", "mjx", "c"], default=None,
+    p.add_argument("--physics", choices=PHYSICS, default=None,
                    help="physics engine (default: the run's)")
     p.add_argument("--video", metavar="OUT.mp4", default=None,
                    help="render the first --video-episodes episodes one after another")

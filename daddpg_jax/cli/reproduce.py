@@ -21,11 +21,13 @@ import argparse
 import os
 import sys
 
+from mjx_envs.settings import TASKS
+
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="reproduce.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", required=True, choices=["reach", "push", "pickup", "pot"],
+    p.add_argument("--task", required=True, choices=TASKS,
                    help="task to run")
     p.add_argument("--seeds", type=int, default=3, help="seeds of the main variant (default 3)")
     p.add_argument("--first-seed", type=int, default=0,
