@@ -1,7 +1,8 @@
-"""Multi-device training: one mesh over the local devices, data parallel over envs and batch.
+"""Multi-device training: one mesh over the devices, data parallel over envs and batch.
 
-With n_dev > 1 local devices (several GPUs, or ``XLA_FLAGS=--xla_force_host_platform_device_count``
-on a CPU) the trainer wraps the body of every cycle in ``jax.shard_map`` over a 1-d mesh with
+With n_dev > 1 devices (several GPUs, ``XLA_FLAGS=--xla_force_host_platform_device_count`` on a
+CPU, or the devices of several processes joined by daddpg_jax/running/distributed.py) the
+trainer wraps the body of every cycle in ``jax.shard_map`` over a 1-d mesh with
 axis ``AXIS``:
 
 - each device steps ``num_envs / n_dev`` envs (the C engine's ``pure_callback`` runs per shard);
@@ -44,16 +45,22 @@ def shard_map(f, mesh: Mesh, in_specs, out_specs, check_vma: bool = True):
 
 
 def resolve_num_devices(requested: int = 0, devices: Sequence | None = None) -> int:
-    """Number of local devices to use: ``requested`` (0 = all local devices)."""
-    avail = len(devices) if devices is not None else len(jax.local_devices())
+    """Number of devices to use: ``requested`` (0 = all devices: ``jax.devices()``, which spans
+    every process of a multi-process job, where all of them must be used)."""
+    avail = len(devices) if devices is not None else jax.device_count()
     n = avail if not requested else int(requested)
     if n < 1 or n > avail:
-        raise ValueError(f"num_devices={requested} but {avail} local device(s) are available")
+        raise ValueError(f"num_devices={requested} but {avail} device(s) are available")
+    if devices is None and jax.process_count() > 1 and n != avail:
+        raise ValueError(f"num_devices={requested}: a job of {jax.process_count()} processes "
+                         f"trains on all its {avail} devices (num_devices=0 or {avail})")
     return n
 
 
 def make_mesh(n_dev: int, devices: Sequence | None = None) -> Mesh:
-    devs = list(devices if devices is not None else jax.local_devices())[:n_dev]
+    """A 1-d mesh (axis AXIS) over the first n_dev devices (default: ``jax.devices()``, those
+    of every process, ordered by process)."""
+    devs = list(devices if devices is not None else jax.devices())[:n_dev]
     return Mesh(np.asarray(devs), (AXIS,))
 
 

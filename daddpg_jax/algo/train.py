@@ -17,14 +17,15 @@ optional progress callback runs once per cycle through `jax.debug.callback`.
 Counters are int32 (`cycles`, `updates`); env steps are cycles * num_envs * T, computed in
 Python by `TrainFns.env_steps` so they cannot overflow.
 
-Several local devices (cfg.num_devices, 0 = all): the cycle body runs under `shard_map` over a
-1-d device mesh, data parallel over envs, replay shards and the update batch (see
+Several devices (cfg.num_devices, 0 = all, of every process of a multi-process job): the cycle
+body runs under `shard_map` over a 1-d device mesh, data parallel over envs, replay shards and
+the update batch, and evaluation plays its episodes spread over the mesh (see
 daddpg_jax/algo/sharding.py). One device: the code path below without any mesh.
 
 `make_train_fns` assembles the pieces built below: `_setup` (static sizes, checks),
-`_acting_fns` (act, rollout), `_normalizer_update`, `_init_fn`, `_updates_fn` (the n_batches
-gradient updates), `_cycle_fn` (one cycle), `_sharded_cycle` (the multi-device wrapper) and
-`_evaluate_fn`.
+`_acting_fns` (act, rollout, rollout_keys), `_normalizer_update`, `_init_fn`, `_updates_fn`
+(the n_batches gradient updates), `_cycle_fn` (one cycle), `_sharded_cycle` (the multi-device
+wrapper) and `_evaluate_fn` (with `_sharded_evaluate` on several devices).
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ class _Setup(NamedTuple):
 def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
                    update_progress: Callable | None = None, update_tick: int = 0,
                    demo_policy: Callable | None = None,
-                   clock: Callable | None = None) -> TrainFns:
+                   clock: Callable | None = None, eval_env=None) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
@@ -110,14 +111,21 @@ def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
     clock: optional host function `clock(stage)` called when a cycle's rollout is done
     (stage ROLLOUT_DONE) and when its updates are done (UPDATES_DONE), for a split of the
     epoch's time (`StageClock`); one device only (ignored with several).
+    eval_env: the env of `evaluate` (default: `env`); e.g. the task without its training-only
+    options (mjx_envs.settings.test_overrides), so that test episodes stay the standard task.
     """
     sp = _setup(env, cfg, demo_policy)
-    act, rollout = _acting_fns(sp)
+    act, rollout, rollout_keys = _acting_fns(sp)
     update_normalizers = _normalizer_update(sp)
     init = _init_fn(sp, update_normalizers)
     cycle = _cycle_fn(sp, rollout, update_normalizers,
                       _updates_fn(sp, update_progress, update_tick),
                       clock if sp.mesh is None else None)
+    if eval_env is not None and eval_env is not env:
+        _, _, eval_rollout_keys = _acting_fns(sp._replace(env=eval_env))
+        eval_rollout = _rollout_from(eval_rollout_keys)
+    else:
+        eval_rollout, eval_rollout_keys = rollout, rollout_keys
     state_shardings = None
     if sp.mesh is not None:
         cycle, state_shardings = _sharded_cycle(sp, cycle, init)
@@ -142,7 +150,7 @@ def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
         return int(state.cycles) * cfg.num_envs * sp.horizon
 
     return TrainFns(init=_init_wrapper(init, cfg, state_shardings), train_epoch=epoch_jit,
-                    evaluate=_evaluate_fn(sp, rollout), act=jax.jit(act),
+                    evaluate=_evaluate_fn(sp, eval_rollout, eval_rollout_keys), act=jax.jit(act),
                     rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
                     learner=sp.learner, config=cfg, capacity=sp.capacity, horizon=sp.horizon,
                     num_devices=sp.n_dev, mesh=sp.mesh, state_shardings=state_shardings)
@@ -189,8 +197,9 @@ def _normalize_inputs(cfg: TrainConfig, state: TrainState, o, g):
 
 
 def _acting_fns(sp: _Setup):
-    """(act, rollout): the deterministic joint action, and episodes of the actors (exploring
-    or not) played by `acting.play_episodes`."""
+    """(act, rollout, rollout_keys): the deterministic joint action, and episodes of the actors
+    (exploring or not) played like `acting.play_episodes` (rollout_keys: from given reset
+    keys and scan key)."""
     cfg, learner, env = sp.cfg, sp.learner, sp.env
 
     def act(state: TrainState, obs, desired_goal):
@@ -202,7 +211,8 @@ def _acting_fns(sp: _Setup):
         pi = agent_lib.policy_actions(learner, state.agent.actor, o, g)
         return nets.joint_action(pi).reshape(lead + (env.action_size,))
 
-    def rollout(state: TrainState, key, n_envs: int, explore: bool):
+    def rollout_keys(state: TrainState, reset_keys, k_scan, explore: bool):
+        """One episode per reset key; k_scan: the key carried through the steps."""
         def actors(s, keys):
             k_noise, k_coin, k_rand = keys
             o, g = _normalize_inputs(cfg, state, s.obs["observation"], s.obs["desired_goal"])
@@ -214,12 +224,20 @@ def _acting_fns(sp: _Setup):
                 pi = jnp.where(coin, rand, pi)
             return nets.joint_action(pi)
         # acting.play_episodes, recording physics_ok as well (for the physics-fault rate)
-        k_reset, k_scan = jax.random.split(key)
-        s0, tr = acting.rollout(env, actors, jax.random.split(k_reset, n_envs), key=k_scan,
+        s0, tr = acting.rollout(env, actors, reset_keys, key=k_scan,
                                 step_keys=acting.TRAIN_STEP_KEYS, record=_record(sp.info_keys))
         return acting.stack_episodes(s0, tr), tr
 
-    return act, rollout
+    return act, _rollout_from(rollout_keys), rollout_keys
+
+
+def _rollout_from(rollout_keys):
+    """rollout(state, key, n_envs, explore): n_envs episodes, the reset keys split from key."""
+    def rollout(state: TrainState, key, n_envs: int, explore: bool):
+        k_reset, k_scan = jax.random.split(key)
+        return rollout_keys(state, jax.random.split(k_reset, n_envs), k_scan, explore)
+
+    return rollout
 
 
 def _record(info_keys):
@@ -433,14 +451,15 @@ def _sharded_cycle(sp: _Setup, cycle_body, init):
     return cycle, state_shardings
 
 
-def _evaluate_fn(sp: _Setup, rollout):
+def _evaluate_fn(sp: _Setup, rollout, rollout_keys):
     cfg = sp.cfg
 
     def evaluate_impl(state: TrainState, key):
         episodes, tr = rollout(state, key, cfg.n_test_episodes, explore=False)
         return _rollout_metrics(episodes, tr)
 
-    evaluate_jit = jax.jit(evaluate_impl)
+    impl = evaluate_impl if sp.mesh is None else _sharded_evaluate(sp, rollout_keys)
+    evaluate_jit = jax.jit(impl)
 
     def evaluate(state: TrainState, key=None):
         """Deterministic actors on n_test_episodes episodes from fixed seeds (cfg.eval_seed)."""
@@ -449,6 +468,35 @@ def _evaluate_fn(sp: _Setup, rollout):
         return evaluate_jit(state, key)
 
     return evaluate
+
+
+def _sharded_evaluate(sp: _Setup, rollout_keys):
+    """evaluate_impl spread over the mesh: the same n_test_episodes reset keys as on one
+    device (padded with copies of the last one to a multiple of the devices), each device
+    playing its share; the episodes are gathered and the padding dropped before the means."""
+    n, n_dev = sp.cfg.n_test_episodes, sp.n_dev
+    n_pad = -(-n // n_dev) * n_dev
+    P = jax.sharding.PartitionSpec
+
+    def local(policy, reset_keys, k_scan):
+        agent, obs_norm, goal_norm = policy
+        state = TrainState(agent=agent, obs_norm=obs_norm, goal_norm=goal_norm, buffer=None,
+                           demos=None, key=k_scan, cycles=None, updates=None)
+        return rollout_keys(state, reset_keys, k_scan, False)
+
+    played = shd.shard_map(local, sp.mesh, in_specs=(P(), P(shd.AXIS), P()),
+                           out_specs=(P(shd.AXIS), P(None, shd.AXIS)), check_vma=False)
+
+    def evaluate_impl(state: TrainState, key):
+        k_reset, k_scan = jax.random.split(key)
+        keys = jax.random.split(k_reset, n)
+        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], n_pad - n, axis=0)])
+        episodes, tr = played((state.agent, state.obs_norm, state.goal_norm), keys, k_scan)
+        episodes = jax.tree.map(lambda x: x[:n], episodes)
+        tr = jax.tree.map(lambda x: x[:, :n], tr)
+        return _rollout_metrics(episodes, tr)
+
+    return evaluate_impl
 
 
 def _init_wrapper(init_fn, cfg, shardings=None):

@@ -9,6 +9,8 @@ Examples
   daddpg-train --config runs/push_maddpg/config.json --seed 1   # rerun a recorded config
   daddpg-train --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
   daddpg-train --task pickup --demos 100             # + 100 scripted demonstrations
+  daddpg-train --task push --out runs/p --coordinator node0:12345 --num-processes 2 \
+      --process-id 0                                 # one of 2 processes (docs/SCALING.md)
 (`python experiments/run.py ...` is the same command.)
 
 Outputs in RUN_DIR: config.json, metrics.csv, learning_curve.png, checkpoints/{epoch},
@@ -123,7 +125,43 @@ def build_parser(device: str | None = None):
     p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (default: one line)")
+    _add_distributed_flags(p)
     return p
+
+
+def _add_distributed_flags(p) -> None:
+    from daddpg_jax.running.distributed import DEFAULT_TIMEOUT
+
+    g = p.add_argument_group(
+        "multi-process training (docs/SCALING.md; every process runs the same command, only "
+        "--process-id differs; without these flags the cluster's variables are used when they "
+        "show more than one process, e.g. SLURM's srun)")
+    g.add_argument("--coordinator", metavar="HOST:PORT", default=None,
+                   help="address of process 0, which runs the job's coordinator")
+    g.add_argument("--num-processes", type=int, default=None, metavar="N",
+                   help="number of processes in the job")
+    g.add_argument("--process-id", type=int, default=None, metavar="I",
+                   help="this process's id, 0 .. N-1 (process 0 writes the run's files)")
+    g.add_argument("--distributed-timeout", type=float, default=DEFAULT_TIMEOUT,
+                   metavar="SECONDS",
+                   help="give up joining the job after this long, with an error "
+                        f"(default {DEFAULT_TIMEOUT:g})")
+
+
+def join_job(argv=None):
+    """Joins a multi-process job when the flags or the cluster's variables ask for one (before
+    anything else uses JAX); returns its Layout or None. Exits 2 with one line on failure."""
+    from daddpg_jax.running import distributed
+
+    pre = argparse.ArgumentParser(add_help=False)
+    _add_distributed_flags(pre)
+    args, _ = pre.parse_known_args(argv)
+    try:
+        return distributed.join(args.coordinator, args.num_processes, args.process_id,
+                                timeout=args.distributed_timeout)
+    except distributed.DistributedError as e:
+        print(f"daddpg-train: error: {e}", file=sys.stderr, flush=True)
+        sys.exit(2)
 
 
 def _recorded(path: str):
@@ -160,8 +198,9 @@ def _check_out(path: str, force: bool) -> None:
                           "config.json of a run), and it holds other files")
 
 
-def resolve(args, parser):
-    """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError."""
+def resolve(args, parser, check_out: bool = True):
+    """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError.
+    check_out=False leaves a new run's directory unchecked (see `_new_run_dir`)."""
     if args.resume and args.config:
         raise ConfigError("--resume and --config exclude each other")
     if args.resume and args.force:
@@ -216,20 +255,35 @@ def resolve(args, parser):
     if run_dir is None:
         run_dir = args.out or os.path.join(
             "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
-        _check_out(run_dir, args.force)
+        if check_out:
+            _check_out(run_dir, args.force)
     return cfg, env_over, run_dir
+
+
+def _new_run_dir(args, run_dir: str) -> str:
+    """A new run's directory as process 0 names and checks it, on every process (the default
+    name holds the time); ConfigError everywhere when process 0's check fails."""
+    from daddpg_jax.running import distributed
+
+    def check(path):
+        _check_out(path, args.force)
+        return path
+
+    return distributed.on_primary(check, run_dir, errors=(ConfigError,))
 
 
 class Progress:
     """The progress bar: ticks once per cycle (train success, env steps/s) and, in long cycles
     (>= 200 updates), 10 times during the updates."""
 
-    def __init__(self, cfg: TrainConfig, episode_length: int):
+    def __init__(self, cfg: TrainConfig, episode_length: int, show: bool = True):
         from tqdm import tqdm
 
         self.cfg = cfg
+        # show=False (processes other than 0 of a multi-process job): the same callbacks are
+        # compiled into every process's program, and draw nothing
         self.bar = tqdm(total=cfg.n_epochs * cfg.n_cycles, unit="cycle", dynamic_ncols=True,
-                        desc=f"{cfg.task}/{cfg.algo}")
+                        desc=f"{cfg.task}/{cfg.algo}", disable=not show)
         self.steps_per_cycle = cfg.num_envs * episode_length
         self.update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
         self.t_last = time.perf_counter()
@@ -267,25 +321,24 @@ def _epoch_line(row) -> str:
 
 
 def main(argv=None):
+    layout = join_job(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        cfg, env_over, run_dir = resolve(args, parser)
+        cfg, env_over, run_dir = resolve(args, parser, check_out=False)
+        if not args.resume:
+            run_dir = _new_run_dir(args, run_dir)
     except ConfigError as e:
         parser.error(str(e))
 
+    from daddpg_jax.running.distributed import DistributedError
     from daddpg_jax.running.runner import CheckpointError, NonFiniteLoss, RunDirError, train
 
-    print(f"run dir: {os.path.abspath(run_dir)}")
-    print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
-          f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
-          f"{cfg.n_epochs} epochs", flush=True)
-    if cfg.n_demos > 0:
-        print(f"demonstrations: {cfg.n_demos} scripted episodes (not counted in env steps), "
-              f"{cfg.demo_batch} demo transitions per update, bc_weight {cfg.bc_weight}, "
-              f"q_filter {cfg.q_filter}", flush=True)
+    primary = layout is None or layout.process_id == 0
+    if primary:
+        _print_header(cfg, run_dir)
     T = settings.task_config(cfg.task, **env_over).episode_length
-    bar = None if args.no_progress else Progress(cfg, T)
+    bar = None if args.no_progress else Progress(cfg, T, show=primary)
 
     def on_epoch(row):
         if bar is None:
@@ -302,7 +355,7 @@ def main(argv=None):
     except NonFiniteLoss as e:
         print(f"error: {e}", file=sys.stderr)
         return 3
-    except (RunDirError, CheckpointError) as e:
+    except (RunDirError, CheckpointError, DistributedError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -317,8 +370,20 @@ def main(argv=None):
     finally:
         if bar is not None:
             bar.close()
-    print(res.summary())
+    if primary:
+        print(res.summary())
     return 0
+
+
+def _print_header(cfg: TrainConfig, run_dir: str) -> None:
+    print(f"run dir: {os.path.abspath(run_dir)}")
+    print(f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
+          f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
+          f"{cfg.n_epochs} epochs", flush=True)
+    if cfg.n_demos > 0:
+        print(f"demonstrations: {cfg.n_demos} scripted episodes (not counted in env steps), "
+              f"{cfg.demo_batch} demo transitions per update, bc_weight {cfg.bc_weight}, "
+              f"q_filter {cfg.q_filter}", flush=True)
 
 
 if __name__ == "__main__":

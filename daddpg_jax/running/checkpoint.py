@@ -97,11 +97,15 @@ def check_run_dir(run_dir, step: int | None = None, best: bool = False) -> list:
 
 
 def all_steps(run_dir, best: bool = False):
-    """The complete checkpoints' steps (best=True: of checkpoints_best/), ascending."""
-    if not os.path.isdir(checkpoint_dir(run_dir, best)):
+    """The complete checkpoints' steps (best=True: of checkpoints_best/), ascending: the
+    directories named by a step number (orbax and `save_best` write under a temporary name and
+    rename when complete). Read from the directory, not through an orbax CheckpointManager,
+    whose creation is a barrier of all processes of a multi-process job."""
+    d = checkpoint_dir(run_dir, best)
+    if not os.path.isdir(d):
         return []
-    with _manager(run_dir, best=best) as mngr:
-        return sorted(mngr.all_steps())
+    return sorted(int(n) for n in os.listdir(d)
+                  if n.isdigit() and os.path.isdir(os.path.join(d, n)))
 
 
 def latest_step(run_dir, best: bool = False) -> int | None:
@@ -248,7 +252,13 @@ def restore(run_dir, template, step: int | None = None, restore_buffer: bool | N
     elif restore_buffer and not has_buffer(run_dir, step, best):
         raise FileNotFoundError(f"checkpoint {step} was saved without the replay buffer")
     tree, buffer = _split(template)
-    abstract = lambda t: jax.tree.map(ocp.utils.to_shape_dtype_struct, t)
+    # each leaf with the template's sharding (an abstract template's: the first local
+    # device): a checkpoint saved on other devices (several, or another process layout)
+    # restores onto the template's devices
+    one = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    abstract = lambda t: jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype,
+                                       sharding=getattr(x, "sharding", None) or one), t)
     items = {"state": ocp.args.StandardRestore(abstract(tree))}
     if restore_buffer:
         items["buffer"] = ocp.args.StandardRestore(abstract(buffer))

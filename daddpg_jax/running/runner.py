@@ -38,6 +38,7 @@ import numpy as np
 from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.running import distributed as dist
 from mjx_envs.schema import ConfigError
 
 METRIC_COLUMNS = (
@@ -86,8 +87,9 @@ class RunResult:
 
 
 def warn(msg: str) -> None:
-    """One line on stderr."""
-    print(f"warning: {msg}", file=sys.stderr, flush=True)
+    """One line on stderr (from process 0 only in a multi-process job)."""
+    if dist.is_primary():
+        print(f"warning: {msg}", file=sys.stderr, flush=True)
 
 
 def _read_rows(path) -> list[dict]:
@@ -168,15 +170,21 @@ class _Log:
         return int(self.rows[-1]["epoch"]) if self.rows else 0
 
     def commit(self, cfg: TrainConfig, state, row: dict) -> None:
-        """The end of an epoch: CSV row (atomic rewrite), checkpoint, then the best one."""
+        """The end of an epoch: CSV row (atomic rewrite), checkpoint, then the best one. In a
+        multi-process job every process saves its part of the checkpoint; process 0 alone
+        writes the CSV and the best checkpoint's copy."""
         self.rows.append(row)
-        _write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
+        primary = dist.is_primary()
+        if primary:
+            _write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
         epoch = int(row["epoch"])
         ckpt.save(self.run_dir, state, epoch, save_buffer=cfg.save_buffer,
                   keep=cfg.keep_checkpoints)
         if _success(row) > self.best:
-            ckpt.save_best(self.run_dir, epoch)
+            if primary:
+                ckpt.save_best(self.run_dir, epoch)
             self.best = _success(row)
+        dist.barrier(f"daddpg-epoch-{epoch}")
 
 
 def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
@@ -197,11 +205,22 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
     demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
     scripted controller; see ``make_train_fns``).
+
+    In a multi-process job (daddpg_jax/running/distributed.py) every process calls this with
+    the same arguments (checked: DistributedError otherwise); process 0 alone prepares
+    run_dir, writes config.json, metrics.csv and the plot, and calls ``on_epoch``.
     """
     env_overrides = dict(env_overrides or {})
+    dist.check_same_config(dict(config=cfg.to_dict(), env_overrides=env_overrides,
+                                run_dir=os.fspath(run_dir), resume=resume, force=force,
+                                time_budget_s=time_budget_s))
     check_physics_backend(cfg.physics if env is None else getattr(env, "physics", None),
                           cfg.num_envs, cfg.n_test_episodes)
-    _prepare_run_dir(run_dir, resume, force)
+    dist.on_primary(_prepare_run_dir, run_dir, resume, force,
+                    errors=(RunDirError, ValueError, OSError))
+    layout = dist.current_layout() if dist.is_multiprocess() else None
+    if resume:
+        _check_resume_layout(run_dir, layout)
     env = env if env is not None else make_env(cfg, env_overrides)
 
     from daddpg_jax.algo.train import StageClock, make_train_fns
@@ -216,10 +235,12 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
         state, log = _resume(run_dir, state)
     else:
         log = _Log(run_dir, [])
-        ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
-                         env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
-                         command=command, num_agents=variants.get(cfg.algo).num_agents,
-                         physics_resolved=getattr(env, "physics", None))
+        if dist.is_primary():
+            extra = {"distributed": layout.to_dict()} if layout is not None else {}
+            ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
+                             env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
+                             command=command, num_agents=variants.get(cfg.algo).num_agents,
+                             physics_resolved=getattr(env, "physics", None), **extra)
     t_start = time.perf_counter()
     epoch = log.epoch
     while epoch < cfg.n_epochs:
@@ -227,12 +248,14 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                                   t_start - log.wall_offset)
         epoch += 1
         log.commit(cfg, state, row)
-        _warn_physics_faults(row)
-        if plot:
-            _plot(cfg, run_dir, log.rows)
-        if on_epoch is not None:
-            on_epoch(row)
-        if time_budget_s is not None and time.perf_counter() - t_start >= time_budget_s:
+        if dist.is_primary():
+            _warn_physics_faults(row)
+            if plot:
+                _plot(cfg, run_dir, log.rows)
+            if on_epoch is not None:
+                on_epoch(row)
+        if time_budget_s is not None and dist.from_primary(
+                time.perf_counter() - t_start >= time_budget_s):
             break
     if not log.rows:
         return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [])
@@ -291,6 +314,23 @@ def _warn_physics_faults(row: dict) -> None:
              "(timestep, n_substeps, max_delta)")
 
 
+def _check_resume_layout(run_dir: str, layout) -> None:
+    """A run resumes on the process layout it was started on (a buffer saved on n devices
+    restores on n devices; the processes' devices hold its shards)."""
+    try:
+        _, payload = ckpt.load_config(run_dir)
+    except (OSError, ValueError, KeyError):
+        return   # _resume reports what is missing
+    saved = payload.get("distributed")
+    now = layout.to_dict() if layout is not None else None
+    if saved != now:
+        def describe(d):
+            return ("one process" if d is None else
+                    f"{d['num_processes']} processes with {d['process_devices']} devices")
+        raise RunDirError(f"{run_dir!r} was trained by {describe(saved)}; this job has "
+                          f"{describe(now)}: resume it on the same layout")
+
+
 def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
     """Checks run_dir before anything compiles; with force deletes the run in it."""
     if os.path.exists(run_dir) and not os.path.isdir(run_dir):
@@ -315,19 +355,30 @@ def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
 
 def _restore_newest_readable(run_dir: str, template, steps: list):
     """(state, step) of the newest of `steps` that restores, and the [(step, error)] of the
-    newer ones that did not (each warned about)."""
+    newer ones that did not (each warned about). In a multi-process job the processes agree:
+    the newest step that every process can read."""
     bad = []
     for step in reversed(steps):
+        why = None
         try:
             ckpt.verify(run_dir, step)
-            state, step = ckpt.restore(run_dir, template, step)
-            return state, step, bad
         except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
-            _quiet_failed_reads()
             why = _root_cause(e)
-            warn(f"checkpoint {step} ({ckpt.step_dir(run_dir, step)}) cannot be read "
-                 f"({why}); trying an older one")
-            bad.append((step, why))
+        failed = dist.agree_ok(why is None)
+        if failed and why is None:
+            why = f"unreadable on process {', '.join(map(str, failed))}"
+        if not failed:
+            try:
+                state, step = ckpt.restore(run_dir, template, step)
+                return state, step, bad
+            except Exception as e:  # noqa: BLE001 (as above)
+                if dist.is_multiprocess():
+                    raise
+                why = _root_cause(e)
+        _quiet_failed_reads()
+        warn(f"checkpoint {step} ({ckpt.step_dir(run_dir, step)}) cannot be read "
+             f"({why}); trying an older one")
+        bad.append((step, why))
     return None, None, bad
 
 
@@ -364,14 +415,17 @@ def _resume(run_dir: str, template):
     unreadable checkpoint), newer unreadable checkpoints are deleted, and checkpoints_best/ is
     made to agree with the CSV. No complete checkpoint: warns and starts from epoch 0."""
     metrics_path = os.path.join(run_dir, "metrics.csv")
-    ckpt.remove_partial(run_dir)
+    primary = dist.is_primary()
+    dist.on_primary(ckpt.remove_partial, run_dir)
     rows = _read_rows(metrics_path)
     steps = ckpt.all_steps(run_dir)
     if not steps:
         warn(f"{run_dir} has no complete checkpoint (the run was stopped during its first "
              "epoch); starting it again from epoch 0")
-        ckpt.remove_steps(run_dir, ckpt.all_steps(run_dir, best=True), best=True)
-        _write_rows(metrics_path, [])
+        if primary:
+            ckpt.remove_steps(run_dir, ckpt.all_steps(run_dir, best=True), best=True)
+            _write_rows(metrics_path, [])
+        dist.barrier("daddpg-resume")
         return template, _Log(run_dir, [])
     state, step, bad = _restore_newest_readable(run_dir, template, steps)
     if state is None:
@@ -383,11 +437,13 @@ def _resume(run_dir: str, template):
     if bad:
         warn(f"resuming from checkpoint {step}; deleting the unreadable checkpoint(s) "
              f"{', '.join(str(s) for s, _ in bad)}")
-        ckpt.remove_steps(run_dir, [s for s, _ in bad])
     rows = [r for r in rows if int(r["epoch"]) <= step]
-    _write_rows(metrics_path, rows)
     log = _Log(run_dir, rows, wall_offset=float(rows[-1]["wall_time"]) if rows else 0.0)
-    log.best = _reconcile_best(run_dir, rows)
+    if primary:
+        ckpt.remove_steps(run_dir, [s for s, _ in bad])
+        _write_rows(metrics_path, rows)
+        log.best = _reconcile_best(run_dir, rows)
+    dist.barrier("daddpg-resume")
     return state, log
 
 
