@@ -149,9 +149,9 @@ class TrainConfig:
         low=1)
     num_devices: int = spec(
         0,
-        "local devices to spread envs, replay and the update batch over (0 = all local "
-        "devices; 1 = the single-device code path). num_envs and batch_size must be multiples "
-        "of it",
+        "devices to spread envs, replay and the update batch over (0 = all devices, those of "
+        "every process of a multi-process job, where 0 is required; 1 = the single-device code "
+        "path). num_envs and batch_size must be multiples of it",
         low=0)
     n_demos: int = spec(
         0,
