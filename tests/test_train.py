@@ -179,3 +179,33 @@ def test_learns_toy_reach():
         rates.append(float(f.evaluate(s)["success"]))
     print("toy reach eval success", before, rates)
     assert max(rates[-2:]) >= before + 0.5, (before, rates)
+
+
+def test_evaluation_runs_on_the_eval_env():
+    """make_train_fns(eval_env=...): test episodes are played in that env (the runner passes
+    the task without its training-only options), training episodes in `env`."""
+    env = toy_env.make(episode_length=T, threshold=1e-6)          # nothing ever succeeds
+    easy = toy_env.make(episode_length=T, threshold=10.0)         # everything succeeds
+    f = make_train_fns(env, TINY)
+    g = make_train_fns(env, TINY, eval_env=easy)
+    s = f.init()
+    assert float(f.evaluate(s)["success"]) == 0.0
+    assert float(g.evaluate(s)["success"]) == 1.0
+    _, m = g.train_epoch(g.init())
+    assert float(np.max(m["success"])) == 0.0
+
+
+def test_eval_env_is_the_standard_task():
+    """The runner's evaluation env switches the training-only task options off, and is not
+    built when none is on."""
+    from daddpg_jax.algo.config import build_config
+    from daddpg_jax.running.runner import make_eval_env
+    from mjx_envs import settings
+
+    cfg = build_config("pickup").replace(physics="c")
+    assert make_eval_env(cfg, {}) is None
+    assert make_eval_env(cfg.replace(task="reach"), {}) is None
+    ev = make_eval_env(cfg, {"goal_rest_fraction": 0.5, "team_scale": 0.5})
+    for name in settings.TRAINING_ONLY_FIELDS:
+        assert getattr(ev.config, name) == 0.0
+    assert ev.config.team_scale == 0.5

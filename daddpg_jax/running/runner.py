@@ -139,6 +139,21 @@ def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
     return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
 
 
+def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
+    """The env of test episodes: the task without its training-only options
+    (mjx_envs.settings.test_overrides: goals at rest height, grasped-state starts), so that
+    test success always measures the standard task. None when the overrides switch none of
+    them on (the training env then serves both)."""
+    from mjx_envs import settings
+
+    env_overrides = dict(env_overrides or {})
+    test = settings.test_overrides(cfg.task)
+    train_cfg = settings.task_config(cfg.task, **env_overrides)
+    if all(getattr(train_cfg, k) == v for k, v in test.items()):
+        return None
+    return make_env(cfg, {**env_overrides, **test})
+
+
 def check_physics_backend(physics: str | None, num_envs: int, n_test_episodes: int,
                           backend: str | None = None) -> None:
     """Raises ConfigError for MJX physics on a CPU at MJX_CPU_MAX_BATCH envs or test episodes
@@ -221,13 +236,17 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     layout = dist.current_layout() if dist.is_multiprocess() else None
     if resume:
         _check_resume_layout(run_dir, layout)
-    env = env if env is not None else make_env(cfg, env_overrides)
+    eval_env = None
+    if env is None:
+        env = make_env(cfg, env_overrides)
+        eval_env = make_eval_env(cfg, env_overrides)
 
     from daddpg_jax.algo.train import StageClock, make_train_fns
 
     clock = StageClock()
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
-                         update_tick=update_tick, demo_policy=demo_policy, clock=clock)
+                         update_tick=update_tick, demo_policy=demo_policy, clock=clock,
+                         eval_env=eval_env)
     if fns.num_devices > 1:
         clock = None
     state = fns.init(jax.random.PRNGKey(cfg.seed))
