@@ -1,5 +1,5 @@
 PYTHON ?= python3
-.PHONY: install test test-all train bench lint render wheel-smoke
+.PHONY: install test test-all train bench gpu-check lint render wheel-smoke
 
 install:
 	$(PYTHON) -m pip install -e ".[dev]"
@@ -15,6 +15,11 @@ train:
 
 bench:
 	$(PYTHON) experiments/benchmark.py
+
+# one short staged check of a GPU machine (<= 5 min), e.g.
+#   make gpu-check ARGS="--wheels .whl --out runs/gpu_check"   or   ARGS="--smoke" on a CPU
+gpu-check:
+	PYTHON=$(PYTHON) bash experiments/gpu_check.sh $(ARGS)
 
 render:
 	MUJOCO_GL=egl $(PYTHON) experiments/render_scene.py --task reach --out docs/scene_reach.png
