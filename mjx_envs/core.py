@@ -137,10 +137,15 @@ class DualArmEnv:
              "desired_goal": desired_goal.astype(jnp.float32)}
         return o, reward.astype(jnp.float32), metrics, info
 
+    def _start_state(self, key, qpos):
+        """(qpos, qvel, Cartesian targets) an episode starts from: the rules' ``qpos`` at rest
+        and the home targets (`ObjectPoseTask` may start from a grasped state instead)."""
+        del key
+        return qpos, jnp.zeros((self.mj_model.nv,), jnp.float32), jnp.asarray(self._home_mocap)
+
     def reset(self, key) -> State:
         goal, qpos = self.rules.reset(jnp, SAMPLER, key)
-        qvel = jnp.zeros((self.mj_model.nv,), jnp.float32)
-        mocap = jnp.asarray(self._home_mocap)
+        qpos, qvel, mocap = self._start_state(key, qpos)
         data = self.backend.init(qpos, qvel, mocap)
         step = jnp.zeros((), jnp.int32)
         obs, reward, metrics, info = self._observe(data, goal, step)

@@ -19,6 +19,12 @@ Settings: the task's entry of `mjx_envs.settings`; ``settings`` (a dict, e.g. a 
 ``env`` settings, or a `TaskConfig`) overrides them. Dict keys that are not config fields (such
 as the export's derived ``dt``) are ignored.
 
+Training-only options of pickup and pot (`mjx_envs.settings.TRAINING_ONLY_FIELDS`):
+``goal_rest_fraction`` is supported (goals come from the shared rules, with the same draws as
+the JAX env); ``grasp_start_fraction`` is not: it is set to 0 in ``config`` with a warning, and
+every episode starts from the standard initial state (the grasped states are recorded by the
+JAX env). The robot client evaluates the standard task (`mjx_envs.settings.test_overrides`).
+
 ``exact=True`` (default) also repeats the C backend's bookkeeping: state kept in float32
 between control steps, and every control step starts from ``mj_resetData`` + that state (so the
 solver warmstart is zero, as ``mujoco.rollout`` does). Then the trajectory equals the trainer's
@@ -29,6 +35,7 @@ real simulator would.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -66,7 +73,13 @@ class NumpyDualArmEnv:
 
     def __init__(self, settings: Mapping[str, Any] | settings_lib.TaskConfig | None = None,
                  task: str = "reach", exact: bool = True):
-        self.config = cfg = settings_lib.saved_config(task, settings)
+        cfg = settings_lib.saved_config(task, settings)
+        if getattr(cfg, "grasp_start_fraction", 0.0) > 0:
+            warnings.warn(f"NumpyDualArmEnv does not start episodes from grasped states: "
+                          f"grasp_start_fraction={cfg.grasp_start_fraction} is set to 0",
+                          stacklevel=2)
+            cfg = settings_lib.replace_config(cfg, grasp_start_fraction=0.0)
+        self.config = cfg
         self.settings = dataclasses.asdict(cfg)
         self.task = task
         self.exact = bool(exact)

@@ -21,6 +21,10 @@ Per episode (`TaskRules.reset`): the key is split into (goal, initial state) key
   height of the home keyframe); ONE goal pose (x, y, h, yaw) ~ U(target_low, target_high),
   shifted horizontally by r ~ U(target_radius) in a direction phi ~ U(0, 2 pi), at height
   rest + h; the goal of each arm is its object point (a site on the object) at that pose.
+  With ``goal_rest_fraction`` p > 0 (pickup, pot; training only) the goal key is split in four
+  instead of three and one more draw u ~ U(0, 1) follows the direction: where u < p the pose's
+  height term is 0 (the goal lies at the object's resting height). With p = 0 nothing more is
+  drawn, so the goals are those of the standard task.
 
 This module imports neither JAX nor MuJoCo.
 """
@@ -106,13 +110,20 @@ def reach_goal(xp, sampler, key, goal_low, goal_high):
 
 def object_goal(xp, sampler, key, cfg, rest_z: float, offsets):
     """Object-task goal [2, 3]: the object points at ONE sampled object pose (module doc)."""
-    k_pose, k_r, k_phi = sampler.split(key, 3)
+    rest_p = float(getattr(cfg, "goal_rest_fraction", 0.0))
+    if rest_p > 0:
+        k_pose, k_r, k_phi, k_rest = sampler.split(key, 4)
+    else:
+        k_pose, k_r, k_phi = sampler.split(key, 3)
     lo, hi = _bounds(xp, cfg.target_low, cfg.target_high)
     pose = sampler.uniform(k_pose, lo.shape, lo, hi)
     x, y, h, yaw = pose[0], pose[1], pose[2], pose[3]
     r_lo, r_hi = cfg.target_radius
     r = sampler.uniform(k_r, (), r_lo, r_hi)
     phi = sampler.uniform(k_phi, (), 0.0, 2 * np.pi)
+    if rest_p > 0:  # a static choice: with p = 0 the draws are those of the standard task
+        u = sampler.uniform(k_rest, (), 0.0, 1.0)
+        h = xp.where(u < rest_p, xp.zeros_like(h), h)
     pos = xp.stack([x + r * xp.cos(phi), y + r * xp.sin(phi), xp.float32(rest_z) + h])
     return object_points(xp, pos, yaw, offsets)
 

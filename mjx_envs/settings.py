@@ -2,7 +2,9 @@
 MuJoCo at import).
 
 `TaskConfig` holds the fields every task has; `ObjectTaskConfig` adds the object's initial and
-goal pose ranges (push, pickup, pot). `TASK_SETTINGS` holds each task's values; the JAX env
+goal pose ranges (push, pickup, pot); `LiftTaskConfig` adds the training-only task-distribution
+options of the lifting tasks (pickup, pot: `TRAINING_ONLY_FIELDS`, switched off for test
+episodes by `test_overrides`). `TASK_SETTINGS` holds each task's values; the JAX env
 (`mjx_envs.make`), the NumPy simulator (`mjx_envs.numpy_env`), the Gymnasium adapter
 (`mjx_envs.gym_env`) and the robot client all read them from here. Fields are declared with
 `mjx_envs.schema.spec`: type, valid range and docstring, used by validation and ``--help``.
@@ -91,6 +93,30 @@ class ObjectTaskConfig(TaskConfig):
             raise ConfigError(f"target_radius must be (min, max), got {self.target_radius!r}")
 
 
+@dataclasses.dataclass(frozen=True)
+class LiftTaskConfig(ObjectTaskConfig):
+    """`ObjectTaskConfig` plus two options of the training task distribution (pickup, pot),
+    both off by default; test episodes use the standard task (`test_overrides`)."""
+
+    goal_rest_fraction: float = spec(0.0, "training only: the fraction of episodes whose goal "
+                                     "lies at the object's resting height on the table (goal "
+                                     "height term 0) instead of lifted; 0 = off", low=0.0,
+                                     high=1.0)
+    grasp_start_fraction: float = spec(0.0, "training only: the fraction of episodes that "
+                                       "start from a grasped state (both grippers closed on "
+                                       "the object, recorded with the scripted controller when "
+                                       "the env is built) instead of the standard initial "
+                                       "state; 0 = off", low=0.0, high=1.0)
+    n_grasp_states: int = spec(64, "grasped states recorded for grasp_start_fraction (each "
+                               "from a different seed; used only when grasp_start_fraction > "
+                               "0)", low=1)
+
+
+TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction")
+"""Task fields that change only the training task distribution; `test_overrides` turns them
+off for test episodes."""
+
+
 def _flat(v):
     return [y for x in v for y in (_flat(x) if isinstance(x, tuple) else [x])]
 
@@ -119,13 +145,13 @@ TASK_SETTINGS: dict[str, TaskConfig] = {
         target_radius=(0.06, 0.08)),
     # goal: bar centre (x, y, height above its resting height, yaw); the grippers keep a fixed
     # downward orientation, so the goal yaw stays small (+-0.1 rad moves an end by 0.013 m)
-    "pickup": ObjectTaskConfig(
+    "pickup": LiftTaskConfig(
         scene="scene_pickup.xml", **_CONTACT, lock_fingers=False,
         init_low=(0.23, -0.02, -0.10), init_high=(0.27, 0.02, 0.10),
         target_low=(0.22, -0.03, 0.05, -0.10), target_high=(0.28, 0.03, 0.15, 0.10),
         target_radius=(0.0, 0.0)),
     # goal: pot centre (x, y, height above its resting height, yaw), upright
-    "pot": ObjectTaskConfig(
+    "pot": LiftTaskConfig(
         scene="scene_pot.xml", **_CONTACT, lock_fingers=False,
         init_low=(0.23, -0.02, -0.05), init_high=(0.27, 0.02, 0.05),
         target_low=(0.22, -0.03, 0.05, 0.0), target_high=(0.28, 0.03, 0.12, 0.0),
@@ -149,6 +175,19 @@ def default_config(task: str) -> TaskConfig:
     """The task's settings (a frozen dataclass)."""
     check_task(task)
     return TASK_SETTINGS[task]
+
+
+def test_overrides(task: str) -> dict:
+    """The env overrides that give the standard task for test episodes: every field of
+    `TRAINING_ONLY_FIELDS` that the task has, set to 0 (off); {} for tasks without them (reach,
+    push) and for tasks this module does not know."""
+    if task not in TASK_SETTINGS:
+        return {}
+    names = fields(TASK_SETTINGS[task])
+    return {name: 0.0 for name in TRAINING_ONLY_FIELDS if name in names}
+
+
+test_overrides.__test__ = False  # not a pytest test when imported into a test module
 
 
 def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:

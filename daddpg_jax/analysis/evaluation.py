@@ -6,7 +6,9 @@ contact, final goal distances, and an optional video.
     result, traj = evaluation.evaluate(policy, episodes=200, seed=0)
     evaluation.write_video(policy, traj, "reach.mp4", n_episodes=3)
 
-The env is rebuilt from the run's ``config.json`` (task, physics, env overrides), the agents and
+The env is rebuilt from the run's ``config.json`` (task, physics, env overrides; the
+training-only task options, ``mjx_envs.settings.TRAINING_ONLY_FIELDS``, are switched off with
+``mjx_envs.settings.test_overrides``, as in the trainer's test episodes), the agents and
 normalizers are restored from ``RUN_DIR/checkpoints/{step}`` into a template made by
 ``make_train_fns(...).init()`` (with a tiny replay buffer: the buffer is not needed to act), and
 N episodes run at once with deterministic actors (one vmapped, jitted rollout). Episode i's
@@ -73,6 +75,17 @@ class Policy:
     state: Any         # restored TrainState
 
 
+def test_env_overrides(task: str, env_overrides: dict | None) -> dict:
+    """A run's env overrides for test episodes: the standard task, i.e. the training-only task
+    options switched off (``mjx_envs.settings.test_overrides``)."""
+    from mjx_envs import settings
+
+    return {**(env_overrides or {}), **settings.test_overrides(task)}
+
+
+test_env_overrides.__test__ = False  # not a pytest test when imported into a test module
+
+
 def load_policy(run_dir: str, step: int | None = None, physics: str | None = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest)."""
     from daddpg_jax.algo.train import make_train_fns
@@ -89,7 +102,7 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
     # nor the demonstrations (n_demos > 0 would play them again to build the template)
     cfg = cfg.replace(buffer_size=1, n_demos=0)
-    env = make_env(cfg, payload.get("env_overrides") or {})
+    env = make_env(cfg, test_env_overrides(cfg.task, payload.get("env_overrides")))
     fns = make_train_fns(env, cfg)
     state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False)
     return Policy(run_dir, int(step), cfg, payload, env, fns, state)

@@ -9,7 +9,9 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
 
 The task and its env settings (scene, dt, max_delta, workspace, goal region, threshold, ...)
 come from the service's GET /info, i.e. from the exported run; settings an older export lacks
-are the task's defaults from mjx_envs.settings. No JAX is imported.
+are the task's defaults from mjx_envs.settings. Episodes are those of the standard task: the
+training-only task options (mjx_envs.settings.TRAINING_ONLY_FIELDS, e.g. goals at rest height
+or grasped starts) are switched off. No JAX is imported.
 
 Outages: a control period without a usable answer in time (no answer, an error, a malformed or
 late answer) is a missed deadline, in which both arms hold. One line on stderr reports each
@@ -74,6 +76,7 @@ def _served(server: str, task):
 
     from daddpg_jax.deploy.policy import env_settings, task_settings
     from daddpg_jax.deploy.server import PolicyClient
+    from mjx_envs.settings import test_overrides
 
     try:
         info = PolicyClient(server, timeout=5.0).info()
@@ -82,8 +85,10 @@ def _served(server: str, task):
     served = info.get("task")
     if task is not None and served != task:
         raise _ServiceError(f"the service serves a {served!r} policy, not {task!r}")
+    # the standard task: the training-only task options (e.g. grasped starts) switched off
+    env = {**(info.get("env") or {}), **test_overrides(served)}
     try:
-        return info, task_settings(served, info.get("env")), env_settings(served, info.get("env"))
+        return info, task_settings(served, env), env_settings(served, env)
     except ValueError as e:
         raise _ServiceError(f"settings of the served {served!r} policy: {e}") from None
 

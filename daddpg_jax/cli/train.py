@@ -50,7 +50,9 @@ def help_epilog(device: str) -> str:
     out += _field_lines(TrainConfig, cfgs)
     out += ["", f"env fields for --env KEY=VALUE (value for {head}, '-' where a task lacks "
             "the field; meaning):"]
-    out += _field_lines(type(envs["push"]), envs)
+    # the task config class with the most fields holds every other task's (e.g. pickup's)
+    out += _field_lines(max((type(e) for e in envs.values()), key=lambda c: len(schema.fields(c))),
+                        envs)
     return "\n".join(out)
 
 

@@ -170,7 +170,11 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
     except ckpt.RunDirError as e:
         raise ExportError(str(e)) from None
     cfg, payload = ckpt.load_config(run_dir)
-    env = make_env(cfg, payload.get("env_overrides") or {})
+    # the standard task (training-only options such as grasped-state starts off): the env the
+    # policy is deployed to, and nothing recorded for training is rebuilt
+    from mjx_envs.settings import test_overrides
+
+    env = make_env(cfg, {**(payload.get("env_overrides") or {}), **test_overrides(cfg.task)})
     fns = make_train_fns(env, cfg)
     # abstract template: shapes only, so the (large) replay buffer is never allocated
     template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))

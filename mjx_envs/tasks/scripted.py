@@ -100,6 +100,14 @@ def _holding(grip, fingers, point):
     return close & (q > HOLD_OPENING[0]) & (q < HOLD_OPENING[1])
 
 
+def holding(obs):
+    """Per arm [..., 2]: the grasp controller's signal that the gripper is closed on its object
+    point (fingers stopped by the object within `HOLD_OPENING`, gripper still around the point),
+    read from the observation dict alone."""
+    grip, fingers, point, _ = _split(obs)
+    return _holding(grip, fingers, point)
+
+
 def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
     """Pick up / Pot: both grippers approach their object points open, descend, close; once BOTH
     hold, they carry the object to the goal together. ``arms`` selects which arms take part (the
