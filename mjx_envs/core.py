@@ -23,13 +23,16 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import rules, settings
+from mjx_envs import perturb, rules, settings
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
 
 NUM_ARMS = 2
 SAMPLER = rules.JaxSampler()
+PERTURB_STREAM = 0x5E750
+"""fold_in constant of the observation/action perturbations' draws (mjx_envs/perturb.py): the
+task's own draws stay those of the unperturbed env"""
 
 
 @struct.dataclass
@@ -79,6 +82,8 @@ class DualArmEnv:
         self.rules = rules.TaskRules(cfg, self.mj_model, settings.OBJECTS.get(self.task_name))
         self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
+        # static: with every perturbation field 0 the env has no perturbation code nor carry
+        self.perturbation = perturb.Perturbation.from_config(cfg)
 
     # -- rewards ----------------------------------------------------------------------------------
 
@@ -149,17 +154,34 @@ class DualArmEnv:
         data = self.backend.init(qpos, qvel, mocap)
         step = jnp.zeros((), jnp.int32)
         obs, reward, metrics, info = self._observe(data, goal, step)
+        if self.perturbation.active:
+            k_start, k_carry = jax.random.split(jax.random.fold_in(key, PERTURB_STREAM))
+            seen, carry = perturb.start(jnp, SAMPLER, k_start, self.perturbation,
+                                        obs["observation"])
+            obs = dict(obs, observation=seen)
+            info = dict(info, perturb=dict(carry, key=k_carry))
         return State(data=data, obs=obs, reward=jnp.zeros((NUM_ARMS,), jnp.float32),
                      done=jnp.zeros((), jnp.float32), metrics=metrics, info=info)
 
     def step(self, state: State, action) -> State:
         a = jnp.clip(jnp.asarray(action, jnp.float32).reshape(NUM_ARMS, 4), -1.0, 1.0)
+        p = self.perturbation
+        if p.active:
+            carry = state.info["perturb"]
+            a, carry = perturb.delay(jnp, p, carry, a.reshape(-1))
+            a = a.reshape(NUM_ARMS, 4)
         target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
         target = jnp.clip(target + self.config.max_delta * a[:, :3], self._ws_low, self._ws_high)
         ctrl = self._finger_ctrl(a[:, 3])
         data = self.backend.step(state.data, ctrl, target)
         step = state.info["step"] + 1
         obs, reward, metrics, info = self._observe(data, state.obs["desired_goal"], step)
+        if p.active:
+            key, k_obs = jax.random.split(carry["key"])
+            if p.observes:
+                seen, carry = perturb.observe(jnp, SAMPLER, k_obs, p, carry, obs["observation"])
+                obs = dict(obs, observation=seen)
+            info = dict(info, perturb=dict(carry, key=key))
         done = (step >= self.episode_length).astype(jnp.float32)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 

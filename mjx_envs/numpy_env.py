@@ -24,6 +24,8 @@ Training-only options of pickup and pot (`mjx_envs.settings.TRAINING_ONLY_FIELDS
 the JAX env); ``grasp_start_fraction`` is not: it is set to 0 in ``config`` with a warning, and
 every episode starts from the standard initial state (the grasped states are recorded by the
 JAX env). The robot client evaluates the standard task (`mjx_envs.settings.test_overrides`).
+The observation and action perturbations (`mjx_envs.perturb`) are not simulated here either
+(set to 0 with a warning): the robot client applies them to what it reads and sends.
 
 ``exact=True`` (default) also repeats the C backend's bookkeeping: state kept in float32
 between control steps, and every control step starts from ``mj_resetData`` + that state (so the
@@ -44,7 +46,7 @@ import mujoco
 import numpy as np
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import rules
+from mjx_envs import perturb, rules
 from mjx_envs import settings as settings_lib
 from mjx_envs.model import home_state, load_model
 
@@ -79,6 +81,12 @@ class NumpyDualArmEnv:
                           f"grasp_start_fraction={cfg.grasp_start_fraction} is set to 0",
                           stacklevel=2)
             cfg = settings_lib.replace_config(cfg, grasp_start_fraction=0.0)
+        on = {k: getattr(cfg, k) for k in perturb.FIELDS if getattr(cfg, k)}
+        if on:
+            warnings.warn(f"NumpyDualArmEnv simulates true observations and actions: {on} "
+                          "set to 0 (the robot client applies perturbations: "
+                          "daddpg-robot-client --perturb)", stacklevel=2)
+            cfg = settings_lib.replace_config(cfg, **{k: type(v)(0) for k, v in on.items()})
         self.config = cfg
         self.settings = dataclasses.asdict(cfg)
         self.task = task

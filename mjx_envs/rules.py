@@ -55,6 +55,10 @@ class NumpySampler:
         low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
         return np.asarray(key.uniform(low, high, size=shape), np.float32)
 
+    @staticmethod
+    def normal(key, shape):
+        return np.asarray(key.standard_normal(size=shape), np.float32)
+
 
 class JaxSampler:
     """``jax.random`` draws (float32); JAX is imported when the sampler is made."""
@@ -70,6 +74,9 @@ class JaxSampler:
 
     def uniform(self, key, shape, low, high):
         return self._random.uniform(key, shape, self._dtype, low, high)
+
+    def normal(self, key, shape):
+        return self._random.normal(key, shape, self._dtype)
 
 
 # -- object geometry ----------------------------------------------------------------------------

@@ -47,6 +47,23 @@ class TaskConfig:
                              low=0.0)
     team_scale: float = spec(0.0, "scale of the team term: -team_scale for both arms unless "
                              "every arm succeeds", low=0.0)
+    obs_noise: float = spec(0.0, "observation perturbation (mjx_envs/perturb.py): std, m, of "
+                            "Gaussian noise on each arm's object point and gripper position, "
+                            "every step; 0 = off", low=0.0)
+    obs_dropout: float = spec(0.0, "observation perturbation: probability per step that the "
+                              "object observation stays at its last value (occlusion); 0 = "
+                              "off", low=0.0, high=1.0)
+    obs_bias: float = spec(0.0, "observation perturbation: length, m, of one offset of the "
+                           "object positions per episode in a random direction; 0 = off",
+                           low=0.0)
+    obs_period: int = spec(0, "observation perturbation: a new observation every k control "
+                           "steps, the last one held in between; 0 or 1 = every step", low=0)
+    latency: int = spec(0, "action perturbation: actions applied k control steps late (no "
+                        "motion before the first arrives); 0 = off", low=0)
+    perturb_exact: bool = spec(False, "false: obs_noise, obs_dropout, obs_bias, obs_period and "
+                               "latency are bounds, each episode draws its values uniformly up "
+                               "to them (training randomization); true: every episode uses "
+                               "them exactly (evaluation under a perturbation)")
     arm_contact_penalty: float = spec(0.0, "per-arm penalty when the arms come closer than "
                                       "arm_clearance (goal-independent)", low=0.0)
     arm_clearance: float = spec(0.01, "surface gap between the arms' link capsules under which "
@@ -112,9 +129,10 @@ class LiftTaskConfig(ObjectTaskConfig):
                                "0)", low=1)
 
 
-TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction")
-"""Task fields that change only the training task distribution; `test_overrides` turns them
-off for test episodes."""
+TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction", "obs_noise",
+                        "obs_dropout", "obs_bias", "obs_period", "latency")
+"""Task fields that change only the training task distribution (and the observations and
+actions of training episodes); `test_overrides` turns them off for test episodes."""
 
 
 def _flat(v):
@@ -179,12 +197,13 @@ def default_config(task: str) -> TaskConfig:
 
 def test_overrides(task: str) -> dict:
     """The env overrides that give the standard task for test episodes: every field of
-    `TRAINING_ONLY_FIELDS` that the task has, set to 0 (off); {} for tasks without them (reach,
-    push) and for tasks this module does not know."""
+    `TRAINING_ONLY_FIELDS` that the task has, set to 0 (off); {} for tasks this module does
+    not know."""
     if task not in TASK_SETTINGS:
         return {}
-    names = fields(TASK_SETTINGS[task])
-    return {name: 0.0 for name in TRAINING_ONLY_FIELDS if name in names}
+    cfg = TASK_SETTINGS[task]
+    names = fields(cfg)
+    return {name: type(getattr(cfg, name))(0) for name in TRAINING_ONLY_FIELDS if name in names}
 
 
 test_overrides.__test__ = False  # not a pytest test when imported into a test module

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from daddpg_jax.algo.config import TrainConfig, build_config, current_device, preset
+from daddpg_jax.algo.config import TrainConfig, build_config, current_device, preset, preset_env
 from daddpg_jax.cli import train as cli
 from daddpg_jax.running import checkpoint as ckpt
 from mjx_envs import schema, settings
@@ -40,7 +40,7 @@ def test_help_prints_the_values_of_the_configs_actually_built(device):
         cfg = build_config(task, device=device)
         for name, vals in train.items():
             assert vals[i] == schema.describe_value(getattr(cfg, name)), (task, name)
-        ecfg = settings.default_config(task)
+        ecfg = settings.task_config(task, **preset_env(task))
         for name, vals in env.items():
             want = schema.describe_value(getattr(ecfg, name)) if hasattr(ecfg, name) else "-"
             assert vals[i] == want, (task, name)

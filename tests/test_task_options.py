@@ -226,19 +226,22 @@ def test_grasp_start_mjx_smoke():
 # -- test episodes: the standard task ----------------------------------------------------------
 
 def test_test_overrides_switch_the_options_off():
-    assert settings.TRAINING_ONLY_FIELDS == ("goal_rest_fraction", "grasp_start_fraction")
+    assert settings.TRAINING_ONLY_FIELDS[:2] == ("goal_rest_fraction", "grasp_start_fraction")
+    perturbations = {"obs_noise": 0.0, "obs_dropout": 0.0, "obs_bias": 0.0, "obs_period": 0,
+                     "latency": 0}   # mjx_envs/perturb.py: training only as well
     for task in LIFT_TASKS:
-        assert settings.test_overrides(task) == OFF
-        on = {"goal_rest_fraction": 0.5, "grasp_start_fraction": 0.5}
+        assert settings.test_overrides(task) == {**OFF, **perturbations}
+        on = {"goal_rest_fraction": 0.5, "grasp_start_fraction": 0.5, "latency": 2}
         cfg = settings.task_config(task, **{**on, **settings.test_overrides(task)})
         assert cfg == settings.default_config(task)
-    for task in ("reach", "push", "toy"):
-        assert settings.test_overrides(task) == {}
+    for task in ("reach", "push"):
+        assert settings.test_overrides(task) == perturbations
+    assert settings.test_overrides("toy") == {}
     from daddpg_jax.analysis.evaluation import test_env_overrides
 
     assert test_env_overrides("pot", {"grasp_start_fraction": 1.0, "max_delta": 0.04}) == {
-        **OFF, "max_delta": 0.04}
-    assert test_env_overrides("reach", None) == {}
+        **OFF, **perturbations, "max_delta": 0.04}
+    assert test_env_overrides("reach", None) == perturbations
 
 
 def test_robot_client_runs_the_standard_task(monkeypatch):

@@ -239,6 +239,22 @@ TASK_PRESETS = {
 ACCELERATOR_NUM_ENVS = 4096
 DEVICES = ("cpu", "gpu", "tpu")
 
+TASK_ENV_PRESETS = {
+    "pickup": dict(goal_rest_fraction=0.5, grasp_start_fraction=0.5),
+    "pot": dict(goal_rest_fraction=0.5, grasp_start_fraction=0.5),
+}
+"""Env overrides a new run of the task trains with unless --env says otherwise: the training
+task distribution measured to learn the task from scratch (half the goals at rest height, half
+the episodes from grasped states; docs/RESULTS.md, "Pick up and pot from scratch"). Test
+episodes always use the standard task (mjx_envs.settings.test_overrides)."""
+
+
+def preset_env(task: str) -> dict:
+    """The env overrides of `task`'s training preset (TASK_ENV_PRESETS; {} for most tasks)."""
+    if task not in TASK_PRESETS:
+        raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
+    return dict(TASK_ENV_PRESETS.get(task, {}))
+
 
 def current_device() -> str:
     """The platform JAX runs on ('cpu', 'gpu' or 'tpu'; imports JAX)."""

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from daddpg_jax.algo.config import TrainConfig, preset
+from daddpg_jax.algo.config import TrainConfig, preset, preset_env
 from daddpg_jax.analysis.levels import first_reaching
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import train
@@ -108,6 +108,7 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
             return rows
     log(f"  {exp.label} seed {seed}: {'resuming' if resume else 'starting'} "
         f"({cfg.n_epochs} epochs max, {budget_s - used:.0f} s left)")
+    env_overrides = {**preset_env(task), **(env_overrides or {})}
     res = train(cfg, run_dir, env_overrides=env_overrides, resume=resume,
                 time_budget_s=max(budget_s - used, 1.0), command="reproduce.py")
     log(f"  {res.summary()}")

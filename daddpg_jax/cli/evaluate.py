@@ -5,9 +5,14 @@ Examples
   python experiments/evaluate.py runs/reach_s0                # latest checkpoint, 100 episodes
   python experiments/evaluate.py runs/reach_s0 --step 2 --episodes 500 --seed 7 --json
   MUJOCO_GL=egl python experiments/evaluate.py runs/reach_s0 --video reach.mp4
+  python experiments/evaluate.py runs/push_s0 --perturb obs_noise=0,0.005,0.01,0.02 \
+      --perturb latency=0,1,2 --perturb obs_dropout=0,0.1 --out runs/push_s0/perturbation
 
 The default seed is the run's eval_seed, so with the default 100 episodes the success rate
 equals the test_success_rate that metrics.csv logged for that checkpoint's epoch.
+--perturb evaluates over a grid of observation/action perturbations at exact values (the
+product of the values given; mjx_envs/perturb.py): OUT/perturbation.csv and .json (one row per
+grid point) and OUT/perturbation.png (success against each perturbation).
 Video: headless MuJoCo rendering (MUJOCO_GL=egl; Debian/Ubuntu packages libegl1 libegl-mesa0
 libgl1-mesa-dri), mp4 through imageio-ffmpeg, else a GIF beside the requested path.
 """
@@ -41,16 +46,55 @@ def build_parser():
                    help="episodes in the video (default 3)")
     p.add_argument("--width", type=int, default=480, help="video width (default 480)")
     p.add_argument("--height", type=int, default=360, help="video height (default 360)")
+    p.add_argument("--perturb", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="evaluate over a grid of perturbations (repeatable; one key each): "
+                        "obs_noise (std, m), obs_dropout (probability per step), obs_bias (m), "
+                        "obs_period (steps), latency (steps); needs --out")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="with --perturb: directory for perturbation.csv/.json/.png")
     p.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
                    help="write the results as JSON to PATH (or to stdout without PATH, instead "
                         "of the text summary)")
     return p
 
 
+def _perturbation_grid(policy, args) -> int:
+    from daddpg_jax.analysis import perturbation
+    from mjx_envs.schema import ConfigError
+
+    try:
+        grid = perturbation.parse_grid(policy.cfg.task, args.perturb)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    n = len(perturbation.grid_points(grid))
+    done = []
+
+    def report(row):
+        done.append(row)
+        point = ", ".join(f"{k}={row[k]}" for k in grid)
+        print(f"[{len(done)}/{n}] {point}: success {row['success_rate']:.3f}", flush=True)
+
+    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report)
+    meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
+                task=policy.cfg.task, algo=policy.cfg.algo,
+                title=f"{policy.cfg.task} / {os.path.basename(os.path.abspath(policy.run_dir))}"
+                      f" / checkpoint {policy.step}")
+    paths = perturbation.write_outputs(rows, grid, args.out, meta)
+    print("wrote " + ", ".join(paths.values()))
+    return 0
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if args.episodes < 1:
         print("error: --episodes must be >= 1", file=sys.stderr)
+        return 2
+    if args.perturb and not args.out:
+        print("error: --perturb needs --out DIR", file=sys.stderr)
+        return 2
+    if args.perturb and args.video:
+        print("error: --perturb and --video exclude each other", file=sys.stderr)
         return 2
 
     from daddpg_jax.analysis import evaluation
@@ -68,6 +112,8 @@ def main(argv=None) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if args.perturb:
+        return _perturbation_grid(policy, args)
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
     if args.video:
         try:

@@ -6,12 +6,15 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-robot-client --server http://127.0.0.1:8000 --episodes 200
   daddpg-robot-client --server http://127.0.0.1:8000 --episodes 50 \
       --max-speed 0.5 --min-clearance 0.03 --json client.json
+  daddpg-robot-client --episodes 100 --perturb obs_noise=0.01 --perturb latency=1
 
 The task and its env settings (scene, dt, max_delta, workspace, goal region, threshold, ...)
 come from the service's GET /info, i.e. from the exported run; settings an older export lacks
 are the task's defaults from mjx_envs.settings. Episodes are those of the standard task: the
 training-only task options (mjx_envs.settings.TRAINING_ONLY_FIELDS, e.g. goals at rest height
-or grasped starts) are switched off. No JAX is imported.
+or grasped starts) are switched off. No JAX is imported. --perturb applies the trainer's
+observation and action perturbations (mjx_envs/perturb.py, the same code) at exact values to
+what the policy sees and sends; the safety layer sees the true state.
 
 Outages: a control period without a usable answer in time (no answer, an error, a malformed or
 late answer) is a missed deadline, in which both arms hold. One line on stderr reports each
@@ -27,6 +30,7 @@ outage of the service.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -61,8 +65,26 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--float64", action="store_true",
                    help="step one float64 MjData (a plain simulator) instead of mirroring the "
                         "trainer's C-engine bookkeeping exactly")
+    p.add_argument("--perturb", action="append", default=[], metavar="KEY=VALUE",
+                   help="apply a perturbation at this exact value (repeatable): obs_noise (std, "
+                        "m), obs_dropout (probability per step), obs_bias (m), obs_period "
+                        "(steps), latency (steps); see mjx_envs/perturb.py")
     p.add_argument("--json", default=None, help="also write the summary to this JSON file")
     return p
+
+
+def _perturbation(task: str, items: list):
+    """The Perturbation of --perturb KEY=VALUE items (exact values); raises ConfigError."""
+    from mjx_envs import perturb, schema, settings
+
+    cls = type(settings.default_config(task))
+    over = schema.parse_overrides(cls, items, "--perturb")
+    bad = sorted(set(over) - set(perturb.FIELDS))
+    if bad:
+        raise schema.ConfigError(f"--perturb: {', '.join(bad)} is not a perturbation; choose "
+                                 f"from {', '.join(perturb.FIELDS)}")
+    cfg = settings.task_config(task, **over, perturb_exact=True)   # validates the values
+    return perturb.Perturbation.from_config(cfg)
 
 
 class _ServiceError(Exception):
@@ -135,18 +157,27 @@ def main(argv=None) -> int:
                                    margin=args.workspace_margin)
     client = PolicyClient(args.server, timeout=max(limits.deadline_s, 0.001))
     task = info["task"]
+    from mjx_envs.schema import ConfigError
+
+    try:
+        perturbation = _perturbation(task, args.perturb) if args.perturb else None
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     env = NumpyDualArmEnv(task_cfg, task=task, exact=not args.float64)
     monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
     t0 = time.perf_counter()
     try:
         out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed,
-                           monitor=monitor)
+                           monitor=monitor, perturbation=perturbation)
     finally:
         client.close()
     out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,
                algo=info.get("algo"), seed=args.seed, deadline_ms=limits.deadline_s * 1e3,
                max_step_m=limits.max_step, min_clearance_m=limits.min_clearance,
-               max_missed=monitor.max_missed, max_outage_s=monitor.max_outage_s)
+               max_missed=monitor.max_missed, max_outage_s=monitor.max_outage_s,
+               perturbation=(dataclasses.asdict(perturbation)
+                             if perturbation is not None else None))
     return _finish(out, args)
 
 

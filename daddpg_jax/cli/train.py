@@ -29,7 +29,15 @@ import sys
 import textwrap
 import time
 
-from daddpg_jax.algo.config import DEVICES, HER_MODES, PHYSICS, TrainConfig, build_config, preset
+from daddpg_jax.algo.config import (
+    DEVICES,
+    HER_MODES,
+    PHYSICS,
+    TrainConfig,
+    build_config,
+    preset,
+    preset_env,
+)
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
 from mjx_envs import schema, settings
 from mjx_envs.schema import ConfigError
@@ -43,13 +51,13 @@ def help_epilog(device: str) -> str:
     default num_envs on `device`, and every env field with each task's value."""
     tasks = settings.TASKS
     cfgs = {t: build_config(t, device=device) for t in tasks}
-    envs = {t: settings.default_config(t) for t in tasks}
+    envs = {t: settings.task_config(t, **preset_env(t)) for t in tasks}
     head = " | ".join(tasks)
     out = [f"training fields for --set KEY=VALUE (value for {head} at the default --num-envs "
            f"on {device}; meaning):"]
     out += _field_lines(TrainConfig, cfgs)
-    out += ["", f"env fields for --env KEY=VALUE (value for {head}, '-' where a task lacks "
-            "the field; meaning):"]
+    out += ["", f"env fields for --env KEY=VALUE (value for {head} in a new run, with the "
+            "task's training preset; '-' where a task lacks the field; meaning):"]
     # the task config class with the most fields holds every other task's (e.g. pickup's)
     out += _field_lines(max((type(e) for e in envs.values()), key=lambda c: len(schema.fields(c))),
                         envs)
@@ -231,7 +239,8 @@ def resolve(args, parser, check_out: bool = True):
                                        device=args.device))
         run_dir = None
     else:
-        cfg, env_over = build_config(args.task or "reach", args.num_envs, device=args.device), {}
+        task = args.task or "reach"
+        cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
         run_dir = None
     over = {k: getattr(args, k) for k in _FIELD_FLAGS if getattr(args, k) is not None}
     over.update(schema.parse_overrides(TrainConfig, args.set, "--set"))

@@ -41,6 +41,8 @@ _DEFAULTS = TaskConfig()
 CONTROL_PERIOD_S = _DEFAULTS.timestep * _DEFAULTS.n_substeps
 """Default env dt (``mjx_envs.settings``: timestep 0.01 s x 4 substeps, 0.04 s); the export
 stores the run's own value."""
+PERTURB_STREAM = 0x5E750
+"""second seed word of the robot client's perturbation draws"""
 TOOL_DOWN_QUAT_WORLD = np.array([0.0, 0.70710678, 0.70710678, 0.0])
 """Fixed tool orientation of the simulator's targets (w, x, y, z), world frame (assets/*.xml)."""
 
@@ -280,7 +282,8 @@ def _episode_summary(res, stops, errors, clear_min, rtts, complete=True) -> dict
 
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
-                monitor: OutageMonitor | None = None, episode: int = 0) -> dict:
+                monitor: OutageMonitor | None = None, episode: int = 0,
+                perturbation=None, perturb_rng: np.random.Generator | None = None) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
@@ -292,17 +295,28 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     limits' deadline) is a missed deadline: both arms hold (``stops`` counts them). With a
     ``monitor`` (``OutageMonitor``), each period is reported to it after the hold has been
     applied; its ``ServiceOutage`` ends the episode, with this episode's partial summary in
-    ``.episode``. ``episode``: the episode's index, for the reports. Returns the summary.
+    ``.episode``. ``episode``: the episode's index, for the reports.
+    perturbation: a ``mjx_envs.perturb.Perturbation`` (sim-to-sim: the trainer's observation
+    noise, dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to
+    what the policy sees and to the actions it sends; the safety layer sees the true state.
+    Returns the summary.
     """
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
+    seen, pcarry = res.observation, None
+    if perturbation is not None and perturbation.active:
+        from mjx_envs import perturb, rules
+
+        sampler = rules.NumpySampler()
+        perturb_rng = np.random.default_rng() if perturb_rng is None else perturb_rng
+        seen, pcarry = perturb.start(np, sampler, perturb_rng, perturbation, res.observation)
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
     stops, rtts, errors = 0, [], []
     clear_min = res.arm_clearance
     for step in range(env.episode_length):
         t0 = clock()
-        answer, info = client.act(res.observation, res.desired_goal)
+        answer, info = client.act(seen, res.desired_goal)
         rtt = clock() - t0
         rtts.append(rtt * 1e3)
         action = None if answer is None else safety.validate_action(answer)
@@ -315,10 +329,16 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             decision = safety.hold(env.target, reason="late" if late else "stop")
             stops += 1
         else:
+            if pcarry is not None:
+                action, pcarry = perturb.delay(np, perturbation, pcarry, action)
             proposed, ctrl = env.command_targets(action)
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
         res = env.step_targets(decision.target, ctrl)
+        seen = res.observation
+        if pcarry is not None and perturbation.observes:
+            seen, pcarry = perturb.observe(np, sampler, perturb_rng, perturbation, pcarry,
+                                           res.observation)
         clear_min = min(clear_min, res.arm_clearance)
         if monitor is None:
             continue
@@ -366,21 +386,26 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
 
 
 def run_episodes(env, client, safety, episodes: int, seed: int = 0,
-                 deadline_s: float | None = None, monitor: OutageMonitor | None = None) -> dict:
+                 deadline_s: float | None = None, monitor: OutageMonitor | None = None,
+                 perturbation=None) -> dict:
     """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; the summary of
     ``summarize_episodes`` (success rate over the episodes without a missed deadline, ...).
+    perturbation: see ``run_episode``; its draws come from ``np.random.default_rng([seed,
+    PERTURB_STREAM])``, so the goals are those of the unperturbed run.
 
     monitor: ``OutageMonitor`` (default: ``MAX_MISSED`` / ``MAX_OUTAGE_S``, silent). When it
     gives up, the run stops there and ``aborted`` holds ``reason``, ``episode`` (1-based),
     ``missed``, ``outage_s`` and ``last_error``; otherwise ``aborted`` is None.
     """
     rng = np.random.default_rng(seed)
+    perturb_rng = np.random.default_rng([seed, PERTURB_STREAM])
     monitor = OutageMonitor() if monitor is None else monitor
     eps, aborted = [], None
     for k in range(int(episodes)):
         try:
             eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s,
-                                   monitor=monitor, episode=k))
+                                   monitor=monitor, episode=k, perturbation=perturbation,
+                                   perturb_rng=perturb_rng))
         except ServiceOutage as e:
             if e.episode is not None:
                 eps.append(e.episode)

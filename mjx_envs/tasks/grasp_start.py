@@ -74,7 +74,8 @@ def grasp_states(env_cls, config) -> GraspStates:
     options do not matter: the standard task is recorded); recorded on first use, then cached
     per process."""
     task = env_cls.task_name
-    off = {name: 0.0 for name in settings.TRAINING_ONLY_FIELDS if hasattr(config, name)}
+    off = {name: type(getattr(config, name))(0) for name in settings.TRAINING_ONLY_FIELDS
+           if hasattr(config, name)}   # nominal: no perturbation either
     base = settings.replace_config(config, **off)
     key = (task, base)
     if key not in _CACHE:
