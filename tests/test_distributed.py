@@ -137,12 +137,14 @@ def test_unreachable_coordinator_is_a_clear_error_not_a_hang(tmp_path):
 
 def test_cluster_variables_decide_only_above_one_process():
     assert dist.cluster_size({}) == 1
-    assert dist.cluster_size({"SLURM_NTASKS": "1"}) == 1
-    assert dist.cluster_size({"SLURM_NTASKS": "4", "PMI_SIZE": "x"}) == 4
+    assert dist.cluster_size({"SLURM_STEP_NUM_TASKS": "1"}) == 1
+    assert dist.cluster_size({"SLURM_STEP_NUM_TASKS": "4", "OMPI_COMM_WORLD_SIZE": "x"}) == 4
     assert dist.cluster_size({"OMPI_COMM_WORLD_SIZE": "2"}) == 2
+    # a batch script's own process (no srun step) is one process whatever the allocation
+    assert dist.cluster_size({"SLURM_NTASKS": "8", "SLURM_JOB_ID": "1"}) == 1
     # a plain run, or a cluster of one, stays single-process (returns before touching JAX)
     assert dist.join(environ={}) is None
-    assert dist.join(environ={"SLURM_NTASKS": "1"}) is None
+    assert dist.join(environ={"SLURM_STEP_NUM_TASKS": "1"}) is None
     assert dist.join("localhost:1234", 1, 0) is None
 
 

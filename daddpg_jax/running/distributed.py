@@ -9,8 +9,8 @@ checkpoints together (each writes its own shards of the replay buffer).
 
 Joining: ``join(coordinator, num_processes, process_id)`` (daddpg-train ``--coordinator
 HOST:PORT --num-processes N --process-id I``), or with no flags the cluster variables that
-``jax.distributed.initialize()`` reads (SLURM, Open MPI, ...), used only when they show more
-than one process. On a CPU the processes exchange data through gloo (JAX's CPU collectives).
+``jax.distributed.initialize()`` reads (a SLURM job step, Open MPI), used only when they show
+more than one process. On a CPU the processes exchange data through gloo (JAX's CPU collectives).
 A process that cannot join within ``timeout`` seconds exits with a one-line error instead of
 hanging (JAX itself would wait, then abort with a stack trace).
 
@@ -33,8 +33,10 @@ import numpy as np
 DEFAULT_TIMEOUT = 60.0
 """seconds a process waits to join the job (--distributed-timeout)"""
 
-CLUSTER_SIZE_VARS = ("JAX_NUM_PROCESSES", "SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "PMI_SIZE")
-"""environment variables whose value > 1 means this process is one of a multi-process job"""
+CLUSTER_SIZE_VARS = ("SLURM_STEP_NUM_TASKS", "OMPI_COMM_WORLD_SIZE")
+"""environment variables whose value > 1 means this process is one of a multi-process job that
+``jax.distributed.initialize()`` detects by itself: a SLURM job step (``srun``; a batch script
+run without srun is one process, whatever ``SLURM_NTASKS`` says) and Open MPI's ``mpirun``"""
 
 _MESSAGE_BYTES = 16384
 
