@@ -84,6 +84,15 @@ def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
     assert new[0]["test_success_rate"] == rows[0]["test_success_rate"]
 
 
+def test_stop_at_success_stops_after_the_first_epoch_at_the_rate(env, tmp_path):
+    run = str(tmp_path / "stop")
+    res = train(TINY.replace(n_epochs=3), run, env=env, plot=False, stop_at_success=0.0)
+    assert res.epochs == 1 and [int(r["epoch"]) for r in _rows(run)] == [1]
+    never = train(TINY.replace(n_epochs=2), str(tmp_path / "never"), env=env, plot=False,
+                  stop_at_success=1.01)
+    assert never.epochs == 2
+
+
 def test_resume_without_a_run_fails_clearly(env, tmp_path):
     with pytest.raises(RunDirError, match="no config.json"):
         train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
@@ -108,6 +117,7 @@ def test_cli_help_explains_every_flag_and_field():
     text = out.stdout
     for flag in ("--task", "--num-envs", "--epochs", "--seed", "--algo", "--her", "--physics",
                  "--out", "--resume", "--set", "--env", "--save-buffer", "--time-budget",
+                 "--stop-at-success",
                  "--demos"):
         assert flag in text, flag
     for field in ("gamma", "polyak", "noise_eps", "random_eps", "batch_size", "n_demos",
@@ -132,6 +142,9 @@ def test_cli_rejects_demos_without_a_scripted_controller(tmp_path):
     out = subprocess.run(run + ["--task", "pickup", "--demos", "-1"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 2 and "n_demos must be >= 0" in out.stderr
+    out = subprocess.run(run + ["--stop-at-success", "1.5"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 2 and "--stop-at-success must be in [0, 1]" in out.stderr
     assert not os.path.exists(tmp_path / "x")
 
 

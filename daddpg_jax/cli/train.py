@@ -132,6 +132,9 @@ def build_parser(device: str | None = None):
                         "off; docs/TRAINING.md#demonstrations)")
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="stop after the epoch during which this much wall time has passed")
+    p.add_argument("--stop-at-success", type=float, default=None, metavar="RATE",
+                   help="stop after the first epoch whose test success rate is at least RATE "
+                        "(e.g. 0.9: time-to-target benchmarks)")
     p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (default: one line)")
@@ -335,6 +338,8 @@ def main(argv=None):
     layout = join_job(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.stop_at_success is not None and not 0.0 <= args.stop_at_success <= 1.0:
+        parser.error(f"--stop-at-success must be in [0, 1], got {args.stop_at_success}")
     try:
         cfg, env_over, run_dir = resolve(args, parser, check_out=False)
         if not args.resume:
@@ -361,6 +366,7 @@ def main(argv=None):
         res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
                     progress=bar.cycle if bar else None, on_epoch=on_epoch,
                     command=" ".join(sys.argv), time_budget_s=args.time_budget,
+                    stop_at_success=args.stop_at_success,
                     update_progress=bar.updates if bar and bar.update_tick else None,
                     update_tick=bar.update_tick if bar else 0, force=args.force)
     except NonFiniteLoss as e:

@@ -208,7 +208,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
           command: str | None = None, time_budget_s: float | None = None,
           env: Any = None, update_progress: Callable[[int], None] | None = None,
           update_tick: int = 0, demo_policy: Callable | None = None,
-          force: bool = False) -> RunResult:
+          force: bool = False, stop_at_success: float | None = None) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     resume: continue the run in ``run_dir`` (see the module docstring); else ``run_dir`` must
@@ -216,6 +216,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
     on_epoch: called with each epoch's CSV row after it is written.
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
+    stop_at_success: stop after the first epoch whose test success rate is at least this.
     env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
     update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
     demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
@@ -228,7 +229,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     env_overrides = dict(env_overrides or {})
     dist.check_same_config(dict(config=cfg.to_dict(), env_overrides=env_overrides,
                                 run_dir=os.fspath(run_dir), resume=resume, force=force,
-                                time_budget_s=time_budget_s))
+                                time_budget_s=time_budget_s, stop_at_success=stop_at_success))
     check_physics_backend(cfg.physics if env is None else getattr(env, "physics", None),
                           cfg.num_envs, cfg.n_test_episodes)
     dist.on_primary(_prepare_run_dir, run_dir, resume, force,
@@ -275,6 +276,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                 on_epoch(row)
         if time_budget_s is not None and dist.from_primary(
                 time.perf_counter() - t_start >= time_budget_s):
+            break
+        if stop_at_success is not None and _success(row) >= stop_at_success:
             break
     if not log.rows:
         return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [])
