@@ -23,7 +23,7 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, rules, settings
+from mjx_envs import perturb, randomize, rules, settings
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
@@ -33,6 +33,8 @@ SAMPLER = rules.JaxSampler()
 PERTURB_STREAM = 0x5E750
 """fold_in constant of the observation/action perturbations' draws (mjx_envs/perturb.py): the
 task's own draws stay those of the unperturbed env"""
+RANDOMIZE_STREAM = 0x9A7D0
+"""fold_in constant of the physics randomization's draws (mjx_envs/randomize.py)"""
 
 
 @struct.dataclass
@@ -80,7 +82,16 @@ class DualArmEnv:
         self._ws_low = np.asarray(cfg.workspace_low, np.float32)
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
         self.rules = rules.TaskRules(cfg, self.mj_model, settings.OBJECTS.get(self.task_name))
-        self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
+        # static: with every randomization field 0 the env has no randomization code nor carry
+        self.randomization = randomize.Randomization.from_config(cfg)
+        self._rand_index = None
+        if self.randomization.active:
+            obj = settings.OBJECTS.get(self.task_name)
+            self._rand_index = randomize.ModelIndex(self.mj_model, obj[1] if obj else None,
+                                                    self.randomization)
+        self.backend = make_backend(
+            self.physics, self.mj_model, cfg.n_substeps,
+            rand=self._rand_index if self.randomization.physical else None)
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
         # static: with every perturbation field 0 the env has no perturbation code nor carry
         self.perturbation = perturb.Perturbation.from_config(cfg)
@@ -148,12 +159,46 @@ class DualArmEnv:
         del key
         return qpos, jnp.zeros((self.mj_model.nv,), jnp.float32), jnp.asarray(self._home_mocap)
 
+    def _randomize(self, key, goal, qpos):
+        """(goal, qpos, this episode's randomization values) with the resting height moved by
+        the object's size and the table's height (mjx_envs/randomize.py)."""
+        values = randomize.draw(jnp, SAMPLER, jax.random.fold_in(key, RANDOMIZE_STREAM),
+                                self.randomization)
+        if self.rules.has_object:
+            z = self.rules.qpos_adr + 2
+            qpos = qpos.at[z].add(values["rest_shift"])
+            goal = goal.at[..., 2].add(values["rest_shift"])
+        return goal, qpos, dict(params=values["params"], action_scale=values["action_scale"])
+
+    def _physics_params(self, info):
+        """The backend's per-env parameters (None without physical randomization)."""
+        return info["physics"]["params"] if self.randomization.physical else None
+
+    def _believed(self, obs, info):
+        """The observation as the arms believe it (base calibration error), else as is."""
+        if not self.randomization.moves_base:
+            return obs
+        seen = randomize.believed_obs(jnp, self._rand_index, info["physics"]["params"],
+                                      obs["observation"])
+        return dict(obs, observation=seen.astype(jnp.float32))
+
     def reset(self, key) -> State:
         goal, qpos = self.rules.reset(jnp, SAMPLER, key)
+        rand = None
+        if self.randomization.active:
+            goal, qpos, rand = self._randomize(key, goal, qpos)
         qpos, qvel, mocap = self._start_state(key, qpos)
-        data = self.backend.init(qpos, qvel, mocap)
+        params = None
+        if rand is not None and self.randomization.physical:
+            params = rand["params"]
+            if self.randomization.moves_base:
+                mocap = randomize.to_true(jnp, self._rand_index, params, mocap)
+        data = self.backend.init(qpos, qvel, mocap, params)
         step = jnp.zeros((), jnp.int32)
         obs, reward, metrics, info = self._observe(data, goal, step)
+        if rand is not None:
+            info = dict(info, physics=rand)
+            obs = self._believed(obs, info)
         if self.perturbation.active:
             k_start, k_carry = jax.random.split(jax.random.fold_in(key, PERTURB_STREAM))
             seen, carry = perturb.start(jnp, SAMPLER, k_start, self.perturbation,
@@ -170,12 +215,25 @@ class DualArmEnv:
             carry = state.info["perturb"]
             a, carry = perturb.delay(jnp, p, carry, a.reshape(-1))
             a = a.reshape(NUM_ARMS, 4)
+        r = self.randomization
         target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
-        target = jnp.clip(target + self.config.max_delta * a[:, :3], self._ws_low, self._ws_high)
+        delta = self.config.max_delta * a[:, :3]
+        if r.active:
+            rand = state.info["physics"]
+            delta = delta * rand["action_scale"]
+            if r.moves_base:  # the arms' targets live in their nominal frames
+                target = randomize.to_nominal(jnp, self._rand_index, rand["params"], target)
+        target = jnp.clip(target + delta, self._ws_low, self._ws_high)
+        if r.moves_base:
+            target = randomize.to_true(jnp, self._rand_index, rand["params"], target)
         ctrl = self._finger_ctrl(a[:, 3])
-        data = self.backend.step(state.data, ctrl, target)
+        params = self._physics_params(state.info) if r.active else None
+        data = self.backend.step(state.data, ctrl, target, params)
         step = state.info["step"] + 1
         obs, reward, metrics, info = self._observe(data, state.obs["desired_goal"], step)
+        if r.active:
+            info = dict(info, physics=rand)
+            obs = self._believed(obs, info)
         if p.active:
             key, k_obs = jax.random.split(carry["key"])
             if p.observes:

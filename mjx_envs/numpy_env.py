@@ -87,6 +87,13 @@ class NumpyDualArmEnv:
                           "set to 0 (the robot client applies perturbations: "
                           "daddpg-robot-client --perturb)", stacklevel=2)
             cfg = settings_lib.replace_config(cfg, **{k: type(v)(0) for k, v in on.items()})
+        on = {k: getattr(cfg, k) for k in settings_lib.RANDOMIZATION_FIELDS
+              if getattr(cfg, k, 0.0)}
+        if on:
+            warnings.warn(f"NumpyDualArmEnv simulates the nominal physics: {on} set to 0 "
+                          "(physics randomization is in the JAX env, mjx_envs/randomize.py)",
+                          stacklevel=2)
+            cfg = settings_lib.replace_config(cfg, **{k: 0.0 for k in on})
         self.config = cfg
         self.settings = dataclasses.asdict(cfg)
         self.task = task

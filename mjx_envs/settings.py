@@ -60,10 +60,24 @@ class TaskConfig:
                            "steps, the last one held in between; 0 or 1 = every step", low=0)
     latency: int = spec(0, "action perturbation: actions applied k control steps late (no "
                         "motion before the first arrives); 0 = off", low=0)
-    perturb_exact: bool = spec(False, "false: obs_noise, obs_dropout, obs_bias, obs_period and "
-                               "latency are bounds, each episode draws its values uniformly up "
-                               "to them (training randomization); true: every episode uses "
-                               "them exactly (evaluation under a perturbation)")
+    perturb_exact: bool = spec(False, "false: the perturbation and randomization fields "
+                               "(obs_*, latency and those of RANDOMIZATION_FIELDS) are bounds, "
+                               "each episode draws its values up to them (training "
+                               "randomization); true: every episode uses them exactly "
+                               "(evaluation under a perturbation)")
+    base_offset: float = spec(0.0, "physics randomization (mjx_envs/randomize.py): length, m, "
+                              "of each arm's base offset in a random direction (calibration "
+                              "error; the policy's targets and gripper readings stay in the "
+                              "nominal frame); 0 = off", low=0.0, high=0.05)
+    base_yaw: float = spec(0.0, "physics randomization: each arm's base turned about the "
+                           "vertical, degrees (bound: uniform in [-|v|, |v|]); 0 = off",
+                           low=-10.0, high=10.0)
+    finger_force: float = spec(0.0, "physics randomization: finger servo stiffness and force "
+                               "limit x (1 + v) (bound: v uniform in [-|v|, |v|]); 0 = off",
+                               low=-0.9, high=0.9)
+    action_scale: float = spec(0.0, "physics randomization: the gripper's Cartesian step per "
+                               "action x (1 + v) (bound: v uniform in [-|v|, |v|]); 0 = off",
+                               low=-0.9, high=0.9)
     arm_contact_penalty: float = spec(0.0, "per-arm penalty when the arms come closer than "
                                       "arm_clearance (goal-independent)", low=0.0)
     arm_clearance: float = spec(0.01, "surface gap between the arms' link capsules under which "
@@ -102,6 +116,19 @@ class ObjectTaskConfig(TaskConfig):
                                 "on the table away from the initial pose (push)", length=2,
                                 low=0.0)
 
+    object_mass: float = spec(0.0, "physics randomization: the object's mass and inertia x "
+                              "(1 + v) (bound: v uniform in [-|v|, |v|]); 0 = off", low=-0.9,
+                              high=0.9)
+    object_size: float = spec(0.0, "physics randomization: every object geom's half-sizes + v, "
+                              "m (bound: uniform in [-|v|, |v|]); the resting height and the "
+                              "goals move by v; 0 = off", low=-0.01, high=0.01)
+    object_friction: float = spec(0.0, "physics randomization: tangential friction of every "
+                                  "contact pair with the object x (1 + v) (bound: v uniform in "
+                                  "[-|v|, |v|]); 0 = off", low=-0.9, high=0.9)
+    table_height: float = spec(0.0, "physics randomization: the table top's height + v, m "
+                               "(bound: uniform in [-|v|, |v|]); the resting height and the "
+                               "goals move by v; 0 = off", low=-0.05, high=0.05)
+
     def __post_init__(self):
         super().__post_init__()
         for lo, hi in (("init_low", "init_high"), ("target_low", "target_high")):
@@ -129,8 +156,14 @@ class LiftTaskConfig(ObjectTaskConfig):
                                "0)", low=1)
 
 
+RANDOMIZATION_FIELDS = ("object_mass", "object_size", "object_friction", "table_height",
+                        "base_offset", "base_yaw", "finger_force", "action_scale")
+"""Physics randomization fields (mjx_envs/randomize.py); the first four exist in object tasks
+only."""
+
 TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction", "obs_noise",
-                        "obs_dropout", "obs_bias", "obs_period", "latency")
+                        "obs_dropout", "obs_bias", "obs_period", "latency",
+                        *RANDOMIZATION_FIELDS)
 """Task fields that change only the training task distribution (and the observations and
 actions of training episodes); `test_overrides` turns them off for test episodes."""
 

@@ -1,5 +1,6 @@
 """Evaluation under perturbation: a trained run's test success over a grid of observation and
-action perturbations (mjx_envs/perturb.py) at exact values.
+action perturbations (mjx_envs/perturb.py) and physics randomization fields
+(mjx_envs/randomize.py) at exact values.
 
 ``daddpg-evaluate RUN --perturb obs_noise=0,0.005,0.01,0.02 --perturb latency=0,1,2 --out DIR``
 plays the same fixed-seed test episodes at every grid point (the product of the values given)
@@ -33,9 +34,11 @@ def parse_grid(task: str, items: list[str]) -> dict[str, list]:
         key = key.strip().replace("-", "_")
         if not sep or not values.strip():
             raise schema.ConfigError(f"--perturb {item!r}: expected KEY=V1,V2,...")
-        if key not in perturb.FIELDS:
-            raise schema.ConfigError(f"--perturb: {key!r} is not a perturbation; choose from "
-                                     f"{', '.join(perturb.FIELDS)}")
+        names = [k for k in (*perturb.FIELDS, *settings.RANDOMIZATION_FIELDS)
+                 if hasattr(settings.default_config(task), k)]
+        if key not in names:
+            raise schema.ConfigError(f"--perturb: {key!r} is not a perturbation of {task}; "
+                                     f"choose from {', '.join(names)}")
         if key in grid:
             raise schema.ConfigError(f"--perturb: {key} given twice")
         grid[key] = [schema.parse_overrides(cls, [f"{key}={v.strip()}"], "--perturb")[key]

@@ -10,8 +10,9 @@ Examples
 
 The default seed is the run's eval_seed, so with the default 100 episodes the success rate
 equals the test_success_rate that metrics.csv logged for that checkpoint's epoch.
---perturb evaluates over a grid of observation/action perturbations at exact values (the
-product of the values given; mjx_envs/perturb.py): OUT/perturbation.csv and .json (one row per
+--perturb evaluates over a grid of observation/action perturbations and physics randomization
+fields at exact values (the product of the values given; mjx_envs/perturb.py,
+mjx_envs/randomize.py): OUT/perturbation.csv and .json (one row per
 grid point) and OUT/perturbation.png (success against each perturbation).
 Video: headless MuJoCo rendering (MUJOCO_GL=egl; Debian/Ubuntu packages libegl1 libegl-mesa0
 libgl1-mesa-dri), mp4 through imageio-ffmpeg, else a GIF beside the requested path.
@@ -49,7 +50,10 @@ def build_parser():
     p.add_argument("--perturb", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="evaluate over a grid of perturbations (repeatable; one key each): "
                         "obs_noise (std, m), obs_dropout (probability per step), obs_bias (m), "
-                        "obs_period (steps), latency (steps); needs --out")
+                        "obs_period (steps), latency (steps), and the physics randomization "
+                        "fields at exact values: object_mass, object_size, object_friction, "
+                        "table_height (object tasks), base_offset, base_yaw, finger_force, "
+                        "action_scale (mjx_envs/randomize.py); needs --out")
     p.add_argument("--out", metavar="DIR", default=None,
                    help="with --perturb: directory for perturbation.csv/.json/.png")
     p.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",

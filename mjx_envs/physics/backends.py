@@ -3,16 +3,25 @@
 Both backends expose the same four pure functions, written for ONE env and batched with
 ``jax.vmap`` by the caller:
 
-- ``init(qpos, qvel, mocap_pos) -> data``: a physics state with positions/velocities set and
-  derived quantities (sensors) computed;
-- ``step(data, ctrl, mocap_pos) -> data``: ``n_substeps`` physics steps holding ``ctrl`` (finger
-  servo targets) and ``mocap_pos`` (the Cartesian targets of the two grippers) fixed;
+- ``init(qpos, qvel, mocap_pos, params=None) -> data``: a physics state with
+  positions/velocities set and derived quantities (sensors) computed;
+- ``step(data, ctrl, mocap_pos, params=None) -> data``: ``n_substeps`` physics steps holding
+  ``ctrl`` (finger servo targets) and ``mocap_pos`` (the Cartesian targets of the two grippers)
+  fixed;
 - ``sensordata(data) -> [nsensordata]`` float32;
 - ``mocap_pos(data) -> [nmocap, 3]``.
 
-``mjx``: MuJoCo MJX, ``mjx.Data`` stepped by ``mjx.step`` (the engine on accelerators).
+``params``: one env's physics randomization vector (`mjx_envs.randomize`), given when the
+backend was built with a ``randomize.ModelIndex``; None = the nominal model.
+
+``mjx``: MuJoCo MJX, ``mjx.Data`` stepped by ``mjx.step`` (the engine on accelerators); with
+randomization the model fields of `randomize.model_fields` are replaced inside the (vmapped)
+step, so every env steps its own ``mjx.Model``.
 ``c``: MuJoCo's C engine. ``step`` is a ``jax.pure_callback`` (``vmap_method="broadcast_all"``)
-into ``mujoco.rollout`` over the whole batch at once (multi-threaded, persistent pool).
+into ``mujoco.rollout`` over the whole batch at once (multi-threaded, persistent pool); with
+randomization each env of the batch has its own ``MjModel`` copy, whose fields are rewritten
+(on the host, `randomize.model_fields` over NumPy) only for the envs whose parameters changed,
+i.e. after their reset.
 
 Facts the C backend handles (mujoco 4.0.0):
 - ``rollout`` resets mocap to the model default and zeroes the warmstart at every call, and its
@@ -27,6 +36,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import copy
 import io
 import logging
 import os
@@ -39,6 +49,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+
+from mjx_envs import randomize
 
 
 def default_physics() -> str:
@@ -75,23 +87,35 @@ def import_mjx():
 class MjxBackend:
     name = "mjx"
 
-    def __init__(self, model: mujoco.MjModel, n_substeps: int):
+    def __init__(self, model: mujoco.MjModel, n_substeps: int,
+                 rand: randomize.ModelIndex | None = None):
         mjx = import_mjx()
         self._mjx = mjx
         self.mj_model = model
         self.n_substeps = int(n_substeps)
         self.model = mjx.put_model(model)
         self._data0 = mjx.make_data(self.model)
+        self.rand = rand
 
-    def init(self, qpos, qvel, mocap_pos):
+    def _model(self, params):
+        """The nominal model, or this env's randomized one."""
+        if params is None or self.rand is None:
+            return self.model
+        return self.model.replace(**randomize.model_fields(jnp, self.rand, params))
+
+    def init(self, qpos, qvel, mocap_pos, params=None):
+        model = self._model(params)
         d = self._data0.replace(qpos=qpos, qvel=qvel, mocap_pos=mocap_pos)
-        return self._mjx.forward(self.model, d)
+        if params is not None and self.rand is not None and self.rand.r.moves_base:
+            d = d.replace(mocap_quat=model.body_quat[self.rand.targets])
+        return self._mjx.forward(model, d)
 
-    def step(self, data, ctrl, mocap_pos):
+    def step(self, data, ctrl, mocap_pos, params=None):
         d = data.replace(ctrl=ctrl, mocap_pos=mocap_pos)
+        model = self._model(params)
 
         def body(_, d):
-            return self._mjx.step(self.model, d)
+            return self._mjx.step(model, d)
 
         return jax.lax.fori_loop(0, self.n_substeps, body, d)
 
@@ -160,7 +184,8 @@ def _state_offsets(model: mujoco.MjModel) -> dict[str, tuple[int, int]]:
 class CBackend:
     name = "c"
 
-    def __init__(self, model: mujoco.MjModel, n_substeps: int, nthread: int | None = None):
+    def __init__(self, model: mujoco.MjModel, n_substeps: int, nthread: int | None = None,
+                 rand: randomize.ModelIndex | None = None):
         from mujoco import rollout
 
         self._rollout = rollout
@@ -187,18 +212,39 @@ class CBackend:
         i, k = self._off["mjSTATE_ACT"]
         self._sl_act = slice(i, i + k)
         self._i_time = self._off["mjSTATE_TIME"][0]
+        self.rand = rand
+        self.np_ = randomize.PARAMS if rand is not None else 0  # parameters per env
+        self._env_models: dict = {}  # batch size -> (per-env MjModel copies, their params)
+
+    def models_for(self, params) -> list:
+        """Per-env ``MjModel`` copies holding the randomized fields of ``params`` [n, PARAMS]
+        (one list per batch size, rewritten only where an env's parameters changed)."""
+        params = np.asarray(params, np.float32).reshape(-1, randomize.PARAMS)
+        n = params.shape[0]
+        if n not in self._env_models:
+            models = [copy.copy(self.mj_model) for _ in range(n)]
+            self._env_models[n] = (models, np.tile(randomize.nominal_params(), (n, 1)))
+        models, applied = self._env_models[n]
+        for i in np.flatnonzero(np.any(params != applied, axis=1)):
+            for name, value in randomize.model_fields(np, self.rand, params[i]).items():
+                getattr(models[i], name)[...] = value
+            applied[i] = params[i]
+        return models
 
     # -- host functions (NumPy, run inside pure_callback) -------------------------------------
 
-    def _host_forward(self, qpos, qvel, mocap_pos):
+    def _host_forward(self, qpos, qvel, mocap_pos, params=None):
         lead = qpos.shape[:-1]
         qpos = np.asarray(qpos, np.float64).reshape(-1, self.nq)
         qvel = np.asarray(qvel, np.float64).reshape(-1, self.nv)
         mocap = np.asarray(mocap_pos, np.float64).reshape(-1, self.nmocap, 3)
         out = np.empty((qpos.shape[0], self.ns), np.float32)
-        m, d = self.mj_model, self._fwd_data
+        d = self._fwd_data
         with self._lock:
+            models = ([self.mj_model] * qpos.shape[0] if params is None
+                      else self.models_for(params))
             for b in range(qpos.shape[0]):
+                m = models[b]
                 mujoco.mj_resetData(m, d)
                 d.qpos[:] = qpos[b]
                 d.qvel[:] = qvel[b]
@@ -207,22 +253,24 @@ class CBackend:
                 out[b] = d.sensordata
         return out.reshape(lead + (self.ns,))
 
-    def _run_rollout(self, state, control, n):
+    def _run_rollout(self, state, control, n, models=None):
         """``rollout`` of n envs for n_substeps from full-physics states ``state`` [n, nstate]
         under ``control`` [n, n_substeps, nu + 3 nmocap]; returns (states, sensordata) of every
         substep. Our own persistent pool with skip_checks: the inputs are laid out by the caller
         exactly as rollout expects (C-contiguous float64), outputs preallocated here."""
-        if len(self._models) != n:
-            self._models = [self.mj_model] * n
+        if models is None:
+            if len(self._models) != n:
+                self._models = [self.mj_model] * n
+            models = self._models
         st = np.empty((n, self.n_substeps, self.nstate), np.float64)
         sens = np.empty((n, self.n_substeps, self.ns), np.float64)
         with _POOL_LOCK:
             pool = _rollout_pool(len(self._datas) if len(self._datas) > 1 else 0)
-            pool.rollout(self._models, self._datas, state, control, control_spec=self._ctrl_spec,
+            pool.rollout(models, self._datas, state, control, control_spec=self._ctrl_spec,
                          skip_checks=True, nstep=self.n_substeps, state=st, sensordata=sens)
         return st, sens
 
-    def _host_step(self, time, qpos, qvel, act, ctrl, mocap_pos):
+    def _host_step(self, time, qpos, qvel, act, ctrl, mocap_pos, params=None):
         lead = qpos.shape[:-1]
         n = int(np.prod(lead)) if lead else 1
         time = np.asarray(time, np.float64).reshape(n)
@@ -239,7 +287,8 @@ class CBackend:
         control[:, :, : self.nu] = np.asarray(ctrl).reshape(n, 1, self.nu)
         control[:, :, self.nu:] = np.asarray(mocap_pos).reshape(n, 1, 3 * self.nmocap)
         with self._lock:
-            st, sens = self._run_rollout(state, control, n)
+            models = None if params is None else self.models_for(params)
+            st, sens = self._run_rollout(state, control, n, models)
         last = st[:, -1]
         new_time = last[:, self._i_time]
         expected = time + self.n_substeps * self._dt
@@ -255,13 +304,16 @@ class CBackend:
 
     # -- traced functions (one env) -----------------------------------------------------------
 
-    def init(self, qpos, qvel, mocap_pos):
+    def init(self, qpos, qvel, mocap_pos, params=None):
         qpos = jnp.asarray(qpos, jnp.float32)
         qvel = jnp.asarray(qvel, jnp.float32)
         mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
+        args = (qpos, qvel, mocap_pos)
+        if params is not None and self.rand is not None:
+            args += (jnp.asarray(params, jnp.float32),)
         sens = jax.pure_callback(
             self._host_forward, jax.ShapeDtypeStruct((self.ns,), jnp.float32),
-            qpos, qvel, mocap_pos, vmap_method="broadcast_all")
+            *args, vmap_method="broadcast_all")
         return CData(time=jnp.zeros((), jnp.float32), qpos=qpos, qvel=qvel,
                      act=jnp.zeros((self.na,), jnp.float32), mocap_pos=mocap_pos,
                      sensordata=sens, ok=jnp.ones((), jnp.float32))
@@ -273,18 +325,24 @@ class CBackend:
         each, which halves JAX's per-call transfer overhead at small batches."""
         x = np.asarray(x)
         lead = x.shape[:-1]
-        parts = np.split(x, np.cumsum([1, self.nq, self.nv, self.na, self.nu]), axis=-1)
-        time, qpos, qvel, act, ctrl, mocap = parts
+        parts = np.split(x, np.cumsum([1, self.nq, self.nv, self.na, self.nu,
+                                       3 * self.nmocap]), axis=-1)
+        time, qpos, qvel, act, ctrl, mocap, params = parts
         out = self._host_step(time[..., 0], qpos, qvel, act, ctrl,
-                              mocap.reshape(lead + (self.nmocap, 3)))
+                              mocap.reshape(lead + (self.nmocap, 3)),
+                              params if self.np_ else None)
         t, q, v, a, sens, ok = out
         return np.concatenate([t[..., None], q, v, a, sens, ok[..., None]], axis=-1)
 
-    def step(self, data: CData, ctrl, mocap_pos):
+    def step(self, data: CData, ctrl, mocap_pos, params=None):
         ctrl = jnp.asarray(ctrl, jnp.float32)
         mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
-        x = jnp.concatenate([data.time[None], data.qpos, data.qvel, data.act, ctrl,
-                             mocap_pos.reshape(-1)])
+        parts = [data.time[None], data.qpos, data.qvel, data.act, ctrl, mocap_pos.reshape(-1)]
+        if self.np_:
+            if params is None:
+                raise ValueError("this backend was built with randomization: step needs params")
+            parts.append(jnp.asarray(params, jnp.float32).reshape(-1))
+        x = jnp.concatenate(parts)
         n_out = 1 + self.nq + self.nv + self.na + self.ns + 1
         y = jax.pure_callback(self._host_step_packed, jax.ShapeDtypeStruct((n_out,), jnp.float32),
                               x, vmap_method="broadcast_all")
@@ -310,11 +368,13 @@ class CBackend:
         return data.ok
 
 
-def make_backend(physics: str, model: mujoco.MjModel, n_substeps: int):
+def make_backend(physics: str, model: mujoco.MjModel, n_substeps: int,
+                 rand: randomize.ModelIndex | None = None):
+    """The backend; ``rand``: where the physics randomization acts (None: nominal physics)."""
     if physics == "auto":
         physics = default_physics()
     if physics == "mjx":
-        return MjxBackend(model, n_substeps)
+        return MjxBackend(model, n_substeps, rand=rand)
     if physics == "c":
-        return CBackend(model, n_substeps)
+        return CBackend(model, n_substeps, rand=rand)
     raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
