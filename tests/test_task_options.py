@@ -228,19 +228,23 @@ def test_grasp_start_mjx_smoke():
 def test_test_overrides_switch_the_options_off():
     assert settings.TRAINING_ONLY_FIELDS[:2] == ("goal_rest_fraction", "grasp_start_fraction")
     perturbations = {"obs_noise": 0.0, "obs_dropout": 0.0, "obs_bias": 0.0, "obs_period": 0,
-                     "latency": 0}   # mjx_envs/perturb.py: training only as well
+                     "latency": 0,   # mjx_envs/perturb.py: training only as well
+                     "base_offset": 0.0, "base_yaw": 0.0, "finger_force": 0.0,
+                     "action_scale": 0.0}   # mjx_envs/randomize.py, every task
+    objects = {"object_mass": 0.0, "object_size": 0.0, "object_friction": 0.0,
+               "table_height": 0.0}   # mjx_envs/randomize.py, object tasks
     for task in LIFT_TASKS:
-        assert settings.test_overrides(task) == {**OFF, **perturbations}
+        assert settings.test_overrides(task) == {**OFF, **perturbations, **objects}
         on = {"goal_rest_fraction": 0.5, "grasp_start_fraction": 0.5, "latency": 2}
         cfg = settings.task_config(task, **{**on, **settings.test_overrides(task)})
         assert cfg == settings.default_config(task)
-    for task in ("reach", "push"):
-        assert settings.test_overrides(task) == perturbations
+    assert settings.test_overrides("reach") == perturbations
+    assert settings.test_overrides("push") == {**perturbations, **objects}
     assert settings.test_overrides("toy") == {}
     from daddpg_jax.analysis.evaluation import test_env_overrides
 
     assert test_env_overrides("pot", {"grasp_start_fraction": 1.0, "max_delta": 0.04}) == {
-        **OFF, **perturbations, "max_delta": 0.04}
+        **OFF, **perturbations, **objects, "max_delta": 0.04}
     assert test_env_overrides("reach", None) == perturbations
 
 
