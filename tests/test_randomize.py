@@ -263,3 +263,17 @@ def test_eval_env_drops_training_randomization():
     cfg = build_config("push").replace(physics="c")
     ev = make_eval_env(cfg, {"object_mass": 0.3, "base_yaw": 3.0})
     assert not ev.randomization.active
+
+
+def test_cost_script_measures_off_and_on(tmp_path):
+    import json
+
+    from daddpg_jax.analysis import randomization_cost
+
+    out = tmp_path / "cost.json"
+    randomization_cost.main(["--task", "reach", "--sizes", "2", "--repeats", "1", "--out",
+                             str(out)])
+    data = json.loads(out.read_text())
+    assert [r["randomization"] for r in data["rows"]] == ["off", "on"]
+    assert all(r["env_steps_per_s"] > 0 for r in data["rows"])
+    assert "object_mass" not in data["fields"] and data["fields"]["base_yaw"] == 2.0
