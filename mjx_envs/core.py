@@ -154,21 +154,24 @@ class DualArmEnv:
         return o, reward.astype(jnp.float32), metrics, info
 
     def _start_state(self, key, qpos):
-        """(qpos, qvel, Cartesian targets) an episode starts from: the rules' ``qpos`` at rest
-        and the home targets (`ObjectPoseTask` may start from a grasped state instead)."""
+        """(qpos, qvel, Cartesian targets, grasped) an episode starts from: the rules' ``qpos``
+        at rest and the home targets (`ObjectPoseTask` may start from a grasped state instead:
+        grasped = True)."""
         del key
-        return qpos, jnp.zeros((self.mj_model.nv,), jnp.float32), jnp.asarray(self._home_mocap)
+        return (qpos, jnp.zeros((self.mj_model.nv,), jnp.float32), jnp.asarray(self._home_mocap),
+                jnp.zeros((), bool))
 
     def _randomize(self, key, goal, qpos):
-        """(goal, qpos, this episode's randomization values) with the resting height moved by
-        the object's size and the table's height (mjx_envs/randomize.py)."""
+        """(goal, qpos, this episode's randomization values, rest shift) with the resting height
+        moved by the object's size and the table's height (mjx_envs/randomize.py)."""
         values = randomize.draw(jnp, SAMPLER, jax.random.fold_in(key, RANDOMIZE_STREAM),
                                 self.randomization)
         if self.rules.has_object:
             z = self.rules.qpos_adr + 2
             qpos = qpos.at[z].add(values["rest_shift"])
             goal = goal.at[..., 2].add(values["rest_shift"])
-        return goal, qpos, dict(params=values["params"], action_scale=values["action_scale"])
+        return (goal, qpos, dict(params=values["params"], action_scale=values["action_scale"]),
+                values["rest_shift"])
 
     def _physics_params(self, info):
         """The backend's per-env parameters (None without physical randomization)."""
@@ -186,10 +189,18 @@ class DualArmEnv:
         goal, qpos = self.rules.reset(jnp, SAMPLER, key)
         rand = None
         if self.randomization.active:
-            goal, qpos, rand = self._randomize(key, goal, qpos)
-        qpos, qvel, mocap = self._start_state(key, qpos)
+            goal, qpos, rand, shift = self._randomize(key, goal, qpos)
+        qpos, qvel, mocap, grasped = self._start_state(key, qpos)
         params = None
         if rand is not None and self.randomization.physical:
+            if getattr(self, "grasp_states", None) is not None:
+                # a recorded grasped state is geometry-exact only under the nominal geometry:
+                # such an episode keeps the size, table and arm bases nominal (and its goal)
+                nominal = jnp.asarray(randomize.nominal_params())
+                keep = jnp.asarray(randomize.GEOMETRY_MASK)
+                rand = dict(rand, params=jnp.where(grasped & keep, nominal, rand["params"]))
+                if self.rules.has_object:
+                    goal = jnp.where(grasped, goal.at[..., 2].add(-shift), goal)
             params = rand["params"]
             if self.randomization.moves_base:
                 mocap = randomize.to_true(jnp, self._rand_index, params, mocap)

@@ -25,8 +25,10 @@ in [0, bound]; period an integer in 1..k; latency an integer in 0..k). True (eva
 perturbation, ``daddpg-evaluate --perturb``): every episode uses the values exactly.
 
 Noise and bias move the object and gripper positions; ``object_rel_pos`` is recomputed from the
-perturbed values, so the observation stays self-consistent. The achieved goal, the reward and
-success are computed from the true state: only what the policy sees changes.
+perturbed values, so the observation stays self-consistent. In reach (no object) the object
+terms stay zero: noise moves the gripper positions only, bias and dropout change nothing. The
+achieved goal, the reward and success are computed from the true state: only what the policy
+sees changes.
 """
 
 from __future__ import annotations
@@ -57,11 +59,16 @@ class Perturbation:
     obs_period: int = 0
     latency: int = 0
     exact: bool = False
+    has_object: bool = True
+    """False in reach: its object terms stay zero (no noise, bias or relative position)"""
 
     @classmethod
     def from_config(cls, cfg) -> Perturbation:
+        from mjx_envs.settings import ObjectTaskConfig
+
         vals = {name: getattr(cfg, name, 0) for name in FIELDS}
-        return cls(**vals, exact=bool(getattr(cfg, "perturb_exact", False)))
+        return cls(**vals, exact=bool(getattr(cfg, "perturb_exact", False)),
+                   has_object=isinstance(cfg, ObjectTaskConfig))
 
     @property
     def observes(self) -> bool:
@@ -117,6 +124,8 @@ def _corrupt(xp, sampler, key, p: Perturbation, values: dict, obs):
         k_grip, k_obj = sampler.split(key, 2)
         grip = grip + values["noise"] * sampler.normal(k_grip, grip.shape)
         obj = obj + values["noise"] * sampler.normal(k_obj, obj.shape)
+    if not p.has_object:   # reach: the object terms stay zero
+        return _with(xp, obs, grip_pos=grip)
     return _with(xp, obs, grip_pos=grip, object_pos=obj, object_rel_pos=obj - grip)
 
 
@@ -136,7 +145,7 @@ def observe(xp, sampler, key, p: Perturbation, carry: dict, obs) -> tuple:
     k_obs, k_drop = sampler.split(key, 2)
     seen = _corrupt(xp, sampler, k_obs, p, carry, obs)
     held = carry["held"]
-    if p.obs_dropout:
+    if p.obs_dropout and p.has_object:
         drop = sampler.uniform(k_drop, (), 0.0, 1.0) < carry["dropout"]
         kept = {name: xp.where(drop, _field(held, name), _field(seen, name))
                 for name in OBJECT_FIELDS}

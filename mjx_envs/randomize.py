@@ -42,8 +42,11 @@ How the fields act:
   not. The achieved goal, the reward and success use the true positions.
 - Action scale multiplies the target step ``max_delta * a`` before the workspace clip.
 
-Grasped-state starts (`mjx_envs.tasks.grasp_start`) are recorded under nominal physics; a
-randomized episode that starts from one keeps the recorded object pose and arm joints.
+Grasped-state starts (`mjx_envs.tasks.grasp_start`) are recorded under nominal physics. A
+recorded grasp is exact only under the nominal geometry, so an episode that starts from one
+keeps the object size, table height and arm bases nominal (`GEOMETRY_MASK`) and its goal at the
+nominal height; mass, friction, finger force and action scale are randomized as in any episode.
+Object size changes the geometry only: mass and inertia are `object_mass`'s.
 """
 
 from __future__ import annotations
@@ -60,6 +63,10 @@ NUM_ARMS = 2
 PARAMS = 13
 """length of one env's parameter vector: mass scale, size delta, friction scale, table delta,
 finger scale, base offsets [2, 3], base yaws [2] (radians)"""
+
+GEOMETRY_MASK = np.array([False, True, False, True, False] + [True] * 8)
+"""the parameters that move geometry (object size, table height, arm bases): nominal in an
+episode that starts from a recorded grasped state"""
 
 _MOUNTS = ("l_mount", "r_mount")
 _TARGETS = ("l_target", "r_target")
@@ -190,6 +197,7 @@ class ModelIndex:
         self.r = r
         self.mounts = np.array([model.body(n).id for n in _MOUNTS])
         self.targets = np.array([model.body(n).id for n in _TARGETS])
+        self.target_mocap = np.asarray(model.body_mocapid[self.targets])
         self.base_pos = np.asarray(model.body_pos[self.mounts], np.float32)  # [2, 3]
         self.fingers = np.array([model.actuator(n).id for n in _FINGERS])
         self.has_object = object_body is not None
@@ -205,7 +213,9 @@ class ModelIndex:
         if self.has_object:
             names += ["body_mass", "body_inertia", "body_subtreemass", "geom_size",
                       "geom_rbound", "geom_pos", "pair_friction"]
-        self.nominal = {n: np.asarray(getattr(model, n), np.float32) for n in names}
+        # float64 (the C engine's own values, so that rows left nominal stay bit-exact there);
+        # model_fields casts to float32 under jax.numpy
+        self.nominal = {n: np.array(getattr(model, n), np.float64) for n in names}
 
     def fields(self) -> tuple[str, ...]:
         """The model fields `model_fields` returns (static for this randomization)."""
@@ -227,9 +237,14 @@ class ModelIndex:
 
 
 def model_fields(xp, ix: ModelIndex, params) -> dict:
-    """The randomized model fields (full arrays, float32) of one env's parameter vector
-    [PARAMS]; only the fields `ModelIndex.fields` names (the others stay nominal)."""
-    p, nom, out = unpack(params), {k: xp.asarray(v) for k, v in ix.nominal.items()}, {}
+    """The randomized model fields (full arrays: float64 over NumPy for the C engine, float32
+    over jax.numpy for MJX) of one env's parameter vector [PARAMS]; only the fields
+    `ModelIndex.fields` names (the others stay nominal), and in them only the randomized rows
+    differ from the nominal values."""
+    dtype = np.float64 if xp is np else xp.float32
+    params = xp.asarray(params).astype(dtype)
+    p, nom, out = unpack(params), {k: xp.asarray(v).astype(dtype)
+                                   for k, v in ix.nominal.items()}, {}
     names = ix.fields()
     if "actuator_gainprm" in names:
         f, rows = p["finger"], ix.fingers
@@ -257,9 +272,9 @@ def model_fields(xp, ix: ModelIndex, params) -> dict:
     if "geom_size" in names:
         g, d = ix.geoms, p["size"]
         out["geom_size"] = _set_rows(xp, nom["geom_size"], g,
-                                     xp.maximum(nom["geom_size"][g] + d, np.float32(1e-4)))
+                                     xp.maximum(nom["geom_size"][g] + d, 1e-4))
         out["geom_rbound"] = _set_rows(xp, nom["geom_rbound"], g, nom["geom_rbound"][g]
-                                       + np.float32(np.sqrt(3.0)) * xp.maximum(d, 0.0))
+                                       + np.sqrt(3.0) * xp.maximum(d, 0.0))
     if "geom_pos" in names:
         out["geom_pos"] = _set_rows(xp, nom["geom_pos"], (ix.table, 2),
                                     nom["geom_pos"][ix.table, 2] + p["table"])
@@ -268,7 +283,7 @@ def model_fields(xp, ix: ModelIndex, params) -> dict:
         out["pair_friction"] = _set_rows(xp, nom["pair_friction"], (rows[:, None],
                                          np.array([0, 1])[None, :]),
                                          nom["pair_friction"][rows][:, :2] * p["friction"])
-    return {k: v.astype(xp.float32) for k, v in out.items()}
+    return out
 
 
 # -- the arms' frames ------------------------------------------------------------------------
@@ -291,15 +306,23 @@ def to_nominal(xp, ix: ModelIndex, params, pos):
 
 def believed_obs(xp, ix: ModelIndex, params, obs):
     """The observation [2, OBS_SIZE] with each gripper's position and velocity in its arm's
-    nominal frame (what the arm believes) and object_rel_pos recomputed."""
+    nominal frame (what the arm believes); in object tasks the object's position and velocity
+    relative to the gripper (object_rel_pos, object_velp) follow the believed gripper (reach
+    keeps its zero object terms)."""
     from mjx_envs.observation import obs_layout
 
     sl = obs_layout()
+
+    def field(name):
+        a, b = sl[name]
+        return obs[:, a:b]
+
     rot = _rot_z(xp, unpack(params)["yaw"])
-    grip = to_nominal(xp, ix, params, obs[:, sl["grip_pos"][0]:sl["grip_pos"][1]])
-    a, b = sl["grip_velp"]
-    vel = (xp.swapaxes(rot, -1, -2) @ obs[:, a:b][..., None])[..., 0]
-    o0, o1 = sl["object_pos"]
-    parts = {"grip_pos": grip, "object_rel_pos": obs[:, o0:o1] - grip, "grip_velp": vel}
+    grip = to_nominal(xp, ix, params, field("grip_pos"))
+    vel = (xp.swapaxes(rot, -1, -2) @ field("grip_velp")[..., None])[..., 0]
+    parts = {"grip_pos": grip, "grip_velp": vel}
+    if ix.has_object:
+        parts["object_rel_pos"] = field("object_pos") - grip
+        parts["object_velp"] = field("object_velp") + field("grip_velp") - vel
     return xp.concatenate([parts.get(name, obs[:, i:j]) for name, (i, j) in sl.items()],
                           axis=-1)

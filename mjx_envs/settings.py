@@ -127,7 +127,9 @@ class ObjectTaskConfig(TaskConfig):
                                   "[-|v|, |v|]); 0 = off", low=-0.9, high=0.9)
     table_height: float = spec(0.0, "physics randomization: the table top's height + v, m "
                                "(bound: uniform in [-|v|, |v|]); the resting height and the "
-                               "goals move by v; 0 = off", low=-0.05, high=0.05)
+                               "goals move by v (the grippers' workspace does not: within "
+                               "1 cm they still reach the object); 0 = off", low=-0.01,
+                               high=0.01)
 
     def __post_init__(self):
         super().__post_init__()

@@ -72,6 +72,15 @@ def test_off_by_default_and_nothing_carried():
     assert isinstance(settings.test_overrides("reach")["obs_period"], int)
 
 
+def test_reach_object_terms_stay_zero_under_every_perturbation():
+    s0, tr = _run(task="reach", obs_noise=0.02, obs_bias=0.02, obs_dropout=0.5)
+    obs = _obs(s0, tr)
+    for name in ("object_pos", "object_rel_pos", "object_velp"):
+        assert not np.any(obs[..., slice(*L[name])]), name
+    assert np.any(obs[..., slice(*L["grip_pos"])] != _obs(*_run(task="reach"))[
+        ..., slice(*L["grip_pos"])])
+
+
 def _same_truth(a, b):
     """The true state (achieved goals, rewards, qpos) of two runs is the same."""
     (a0, at), (b0, bt) = a, b
@@ -227,7 +236,7 @@ def test_robot_client_perturbations_match_the_trainer(tmp_path):
                                                     deadline_s=5.0))
         with pytest.warns(UserWarning, match="simulates true observations"):
             np_env = NumpyDualArmEnv(settings_)
-        p = perturb.Perturbation(**pert, exact=True)
+        p = perturb.Perturbation(**pert, exact=True, has_object=False)   # reach
         out = robot.run_episode(np_env, client, safety, goal=np.asarray(s.obs["desired_goal"]),
                                 perturbation=p)
         client.close()

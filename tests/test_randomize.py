@@ -162,6 +162,9 @@ def test_base_offset_and_yaw_move_the_arm_not_what_it_believes():
     # but the true grippers (reach's achieved goal) are displaced by the calibration error
     shift = np.linalg.norm(s0.obs["achieved_goal"] - n0.obs["achieved_goal"], axis=-1)
     assert shift.min() > 0.005 and shift.max() < 0.03
+    # reach has no object: its object terms stay zero
+    for name in ("object_pos", "object_rel_pos", "object_velp"):
+        assert not np.any(tr.obs["observation"][..., slice(*L[name])]), name
     # the transform and its inverse agree
     p = s0.info["physics"]["params"][0]
     ix = env._rand_index
@@ -171,13 +174,13 @@ def test_base_offset_and_yaw_move_the_arm_not_what_it_believes():
 
 
 def test_training_draws_differ_between_envs_within_bounds_and_change_the_physics():
-    env, s0, tr = _run(object_mass=0.5, object_friction=0.5, table_height=0.02,
+    env, s0, tr = _run(object_mass=0.5, object_friction=0.5, table_height=0.01,
                        finger_force=0.3)
     p = randomize.unpack(s0.info["physics"]["params"])
     for k, bound in (("mass", 0.5), ("friction", 0.5), ("finger", 0.3)):
         assert len(set(np.round(p[k], 6))) == N
         assert np.all(np.abs(p[k] - 1.0) <= bound)
-    assert np.all(np.abs(p["table"]) <= 0.02) and len(set(np.round(p["table"], 6))) == N
+    assert np.all(np.abs(p["table"]) <= 0.01) and len(set(np.round(p["table"], 6))) == N
     # the C engine's per-env models hold those values ...
     models = env.backend.models_for(s0.info["physics"]["params"])
     masses = [m.body_mass[env._rand_index.body] for m in models]
@@ -188,7 +191,7 @@ def test_training_draws_differ_between_envs_within_bounds_and_change_the_physics
     z = tr.obs["achieved_goal"][-1][:, 0, 2]
     assert len(set(np.round(z, 4))) == N
     # the same keys give the same draws (deterministic per seed)
-    _, s1, _ = _run(object_mass=0.5, object_friction=0.5, table_height=0.02, finger_force=0.3)
+    _, s1, _ = _run(object_mass=0.5, object_friction=0.5, table_height=0.01, finger_force=0.3)
     np.testing.assert_array_equal(s1.info["physics"]["params"], s0.info["physics"]["params"])
 
 
@@ -205,7 +208,7 @@ def test_finger_force_changes_the_squeeze():
 
 
 def test_mjx_and_c_build_the_same_models_and_start_states():
-    over = dict(object_mass=0.5, object_size=0.004, object_friction=0.5, table_height=0.02,
+    over = dict(object_mass=0.5, object_size=0.004, object_friction=0.5, table_height=0.01,
                 base_offset=0.01, base_yaw=4.0, finger_force=0.3, episode_length=T)
     c = mjx_envs.make("pickup", physics="c", **over)
     m = mjx_envs.make("pickup", physics="mjx", **over)
@@ -277,3 +280,82 @@ def test_cost_script_measures_off_and_on(tmp_path):
     assert [r["randomization"] for r in data["rows"]] == ["off", "on"]
     assert all(r["env_steps_per_s"] > 0 for r in data["rows"])
     assert "object_mass" not in data["fields"] and data["fields"]["base_yaw"] == 2.0
+
+
+def test_believed_obs_moves_the_gripper_terms_consistently():
+    _, ix = _index("pickup", base_yaw=5.0, base_offset=0.01, **EXACT)
+    _, ix_reach = _index("reach", base_yaw=5.0, base_offset=0.01, **EXACT)
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(2, 25)).astype(np.float32)
+    params = randomize.nominal_params()
+    params[5:11] = rng.uniform(-0.01, 0.01, 6)
+    params[11:13] = np.radians([5.0, -3.0])
+    seen = randomize.believed_obs(np, ix, params, obs)
+    f = {k: slice(*v) for k, v in L.items()}
+    rot = np.stack([[[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]]
+                    for y in params[11:13]])
+    np.testing.assert_allclose(seen[:, f["grip_velp"]],
+                               np.einsum("aji,aj->ai", rot, obs[:, f["grip_velp"]]), atol=1e-6)
+    # the object's velocity seen relative to the believed gripper still sums to its own
+    np.testing.assert_allclose(seen[:, f["object_velp"]] + seen[:, f["grip_velp"]],
+                               obs[:, f["object_velp"]] + obs[:, f["grip_velp"]], atol=1e-6)
+    np.testing.assert_allclose(seen[:, f["object_rel_pos"]],
+                               obs[:, f["object_pos"]] - seen[:, f["grip_pos"]], atol=1e-6)
+    for name in ("object_pos", "fingers", "object_rot", "object_velr", "finger_vel"):
+        np.testing.assert_array_equal(seen[:, f[name]], obs[:, f[name]])
+    reach = randomize.believed_obs(np, ix_reach, params, obs)
+    for name in ("object_rel_pos", "object_velp"):
+        np.testing.assert_array_equal(reach[:, f[name]], obs[:, f[name]])
+
+
+def test_yaw_turns_the_mounts_and_the_gripper_targets_about_world_z():
+    import mujoco
+
+    _, ix = _index("reach", base_yaw=6.0, **EXACT)
+    params = randomize.nominal_params()
+    params[11:13] = np.radians([6.0, -4.0])
+    fields = randomize.model_fields(np, ix, params)
+    for arm, yaw in enumerate(np.radians([6.0, -4.0])):
+        q_yaw = np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])
+        for body in (ix.mounts[arm], ix.targets[arm]):
+            want = np.zeros(4)
+            mujoco.mju_mulQuat(want, q_yaw, ix.nominal["body_quat"][body])   # world-frame yaw
+            np.testing.assert_allclose(fields["body_quat"][body], want, atol=1e-12)
+    untouched = np.setdiff1d(np.arange(len(fields["body_quat"])),
+                             np.concatenate([ix.mounts, ix.targets]))
+    np.testing.assert_array_equal(fields["body_quat"][untouched],
+                                  ix.nominal["body_quat"][untouched])
+
+
+def test_c_engine_models_follow_every_new_draw():
+    over = dict(object_mass=0.5, object_size=0.004, table_height=0.01, base_yaw=3.0,
+                finger_force=0.3, episode_length=T)
+    env = mjx_envs.make("pickup", physics="c", **over)
+    reset = jax.jit(jax.vmap(env.reset))
+    for seed in (0, 1, 2):
+        s = jax.device_get(reset(jax.random.split(jax.random.PRNGKey(seed), 3)))
+        params = s.info["physics"]["params"]
+        models = env.backend.models_for(params)
+        for i in range(3):
+            for name, want in randomize.model_fields(np, env._rand_index, params[i]).items():
+                np.testing.assert_array_equal(getattr(models[i], name), want, err_msg=name)
+        # rows that are not randomized keep the model's own float64 values
+        np.testing.assert_array_equal(models[0].body_pos[1:], env.mj_model.body_pos[1:])
+
+
+def test_grasped_starts_keep_the_geometry_nominal():
+    """A recorded grasp is exact under the nominal geometry only: episodes that start from one
+    keep size, table and bases nominal (and their goals), the rest stays randomized."""
+    over = dict(grasp_start_fraction=1.0, n_grasp_states=4, object_mass=0.5,
+                object_size=0.004, table_height=0.01, base_offset=0.01, **EXACT)
+    env, s0, tr = _run(**over)
+    _, g0, gtr = _run(grasp_start_fraction=1.0, n_grasp_states=4)
+    p = randomize.unpack(s0.info["physics"]["params"])
+    np.testing.assert_allclose(p["mass"], 1.5)
+    assert not np.any(p["size"]) and not np.any(p["table"]) and not np.any(p["offset"])
+    np.testing.assert_allclose(s0.obs["desired_goal"], g0.obs["desired_goal"], atol=1e-6)
+    np.testing.assert_array_equal(s0.data.qpos, g0.data.qpos)
+    assert tr.metrics["physics_ok"].min() == 1.0
+    # the heavier bar is still held above the table by the closed grippers after T steps
+    z = tr.obs["achieved_goal"][-1][..., 2]
+    np.testing.assert_allclose(z, gtr.obs["achieved_goal"][-1][..., 2], atol=0.01)

@@ -107,7 +107,9 @@ class MjxBackend:
         model = self._model(params)
         d = self._data0.replace(qpos=qpos, qvel=qvel, mocap_pos=mocap_pos)
         if params is not None and self.rand is not None and self.rand.r.moves_base:
-            d = d.replace(mocap_quat=model.body_quat[self.rand.targets])
+            quat = d.mocap_quat.at[self.rand.target_mocap].set(
+                model.body_quat[self.rand.targets])
+            d = d.replace(mocap_quat=quat)
         return self._mjx.forward(model, d)
 
     def step(self, data, ctrl, mocap_pos, params=None):

@@ -84,9 +84,10 @@ def grasp_states(env_cls, config) -> GraspStates:
 
 
 def mix(states: GraspStates, fraction: float, key, start):
-    """The start ``(qpos, qvel, mocap)`` of one episode: with probability ``fraction`` one of
-    ``states`` (chosen uniformly), else ``start``; draws from ``fold_in(key, GRASP_STREAM)``."""
-    qpos, qvel, mocap = start
+    """The start ``(qpos, qvel, mocap, grasped)`` of one episode: with probability ``fraction``
+    one of ``states`` (chosen uniformly; grasped = True), else ``start``; draws from
+    ``fold_in(key, GRASP_STREAM)``."""
+    qpos, qvel, mocap = start[:3]
     k_use, k_pick = jax.random.split(jax.random.fold_in(key, GRASP_STREAM))
     use = jax.random.uniform(k_use, (), jnp.float32) < fraction
     i = jax.random.randint(k_pick, (), 0, states.qpos.shape[0])
@@ -94,7 +95,7 @@ def mix(states: GraspStates, fraction: float, key, start):
     def pick(table, x):
         return jnp.where(use, jnp.asarray(table, jnp.float32)[i], x)
 
-    return pick(states.qpos, qpos), pick(states.qvel, qvel), pick(states.mocap, mocap)
+    return pick(states.qpos, qpos), pick(states.qvel, qvel), pick(states.mocap, mocap), use
 
 
 def _play(env, keys):
