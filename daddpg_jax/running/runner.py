@@ -440,7 +440,9 @@ def _resume(run_dir: str, template):
     primary = dist.is_primary()
     dist.on_primary(ckpt.remove_partial, run_dir)
     rows = _read_rows(metrics_path)
-    steps = ckpt.all_steps(run_dir)
+    # process 0's list on every process, so that all of them try the same steps in the same
+    # order (each step's readability is then agreed on by all: _restore_newest_readable)
+    steps = dist.from_primary(ckpt.all_steps(run_dir))
     if not steps:
         warn(f"{run_dir} has no complete checkpoint (the run was stopped during its first "
              "epoch); starting it again from epoch 0")
