@@ -37,6 +37,7 @@ import numpy as np
 
 from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
+from daddpg_jax.analysis.levels import reaches
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import distributed as dist
 from mjx_envs.schema import ConfigError
@@ -216,7 +217,8 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     progress: host callback called once per cycle with that cycle's metrics (progress bar).
     on_epoch: called with each epoch's CSV row after it is written.
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
-    stop_at_success: stop after the first epoch whose test success rate is at least this.
+    stop_at_success: stop after the first epoch whose test success rate is at least this
+    (within float32 rounding: 90 of 100 episodes reach 0.9).
     env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
     update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
     demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
@@ -277,7 +279,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
         if time_budget_s is not None and dist.from_primary(
                 time.perf_counter() - t_start >= time_budget_s):
             break
-        if stop_at_success is not None and _success(row) >= stop_at_success:
+        if stop_at_success is not None and reaches(_success(row), stop_at_success):
             break
     if not log.rows:
         return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [])
