@@ -55,6 +55,7 @@ import dataclasses
 
 import numpy as np
 
+from mjx_envs.rules import yaw_quat
 from mjx_envs.settings import RANDOMIZATION_FIELDS as FIELDS
 
 OBJECT_FIELDS = FIELDS[:4]
@@ -158,11 +159,6 @@ def nominal_params() -> np.ndarray:
 
 # -- the model's fields ---------------------------------------------------------------------
 
-def _yaw_quat(xp, yaw):
-    zero = xp.zeros_like(yaw)
-    return xp.stack([xp.cos(yaw / 2), zero, zero, xp.sin(yaw / 2)], axis=-1)
-
-
 def quat_mul(xp, a, b):
     """Hamilton product of quaternions (w, x, y, z) [..., 4]."""
     aw, ax, ay, az = (a[..., i] for i in range(4))
@@ -257,7 +253,7 @@ def model_fields(xp, ix: ModelIndex, params) -> dict:
     if "body_pos" in names:
         out["body_pos"] = _set_rows(xp, nom["body_pos"], ix.mounts,
                                     nom["body_pos"][ix.mounts] + p["offset"])
-        q = _yaw_quat(xp, p["yaw"])
+        q = yaw_quat(xp, p["yaw"])
         quat = _set_rows(xp, nom["body_quat"], ix.mounts,
                          quat_mul(xp, q, nom["body_quat"][ix.mounts]))
         out["body_quat"] = _set_rows(xp, quat, ix.targets,
