@@ -8,7 +8,15 @@ import sys
 
 import pytest
 
-from daddpg_jax.algo.config import TrainConfig, build_config, current_device, preset, preset_env
+from daddpg_jax.algo.config import (
+    ROBUST_ENV,
+    TrainConfig,
+    build_config,
+    current_device,
+    preset,
+    preset_env,
+    robust_env,
+)
 from daddpg_jax.cli import train as cli
 from daddpg_jax.running import checkpoint as ckpt
 from mjx_envs import schema, settings
@@ -76,6 +84,30 @@ def test_flags_set_and_env_reach_the_config(tmp_path):
     assert cfg == build_config("push", 4, device="cpu", algo="ddpg", gamma=0.9,
                                hidden=(64, 64), n_epochs=3)
     assert env_over == {"arm_contact_penalty": 0.1} and run_dir == str(tmp_path / "r")
+
+
+def test_robust_adds_the_robust_bounds_that_the_task_has(tmp_path):
+    """--robust: the ROBUST_ENV bounds of the task's fields on top of the task's env preset;
+    --env still overrides single fields; reach has no object fields; a resume refuses it."""
+    _, env_over, _ = _resolve("--task", "pickup", "--robust", "--env", "latency=1")
+    assert env_over == {**preset_env("pickup"), **ROBUST_ENV, "latency": 1}
+    _, env_over, _ = _resolve("--task", "reach", "--robust")
+    assert env_over == robust_env("reach") == preset_env("reach", robust=True)
+    assert "object_mass" not in env_over and env_over["obs_noise"] == ROBUST_ENV["obs_noise"]
+    assert set(env_over) == set(ROBUST_ENV) - {"object_mass", "object_size",
+                                               "object_friction", "table_height"}
+    # every bound is a training randomization: test episodes stay nominal
+    assert set(ROBUST_ENV) <= set(settings.TRAINING_ONLY_FIELDS)
+    for task in settings.TASKS:
+        settings.task_config(task, **preset_env(task, robust=True))   # valid everywhere
+    # a recorded config keeps its own env fields and gains the bounds
+    run = tmp_path / "old"
+    ckpt.save_config(str(run), build_config("push", device="cpu"),
+                     env_overrides={"team_scale": 0.5})
+    _, env_over, _ = _resolve("--config", str(run), "--robust")
+    assert env_over == {"team_scale": 0.5, **robust_env("push")}
+    with pytest.raises(schema.ConfigError, match="--robust is decided by the run's config"):
+        _resolve("--resume", str(run), "--robust")
 
 
 def test_config_file_reruns_a_recorded_configuration(tmp_path):

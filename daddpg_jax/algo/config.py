@@ -14,7 +14,7 @@ import math
 from daddpg_jax.algo.variants import ALGOS
 from daddpg_jax.algo.variants import get as get_variant
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
-from mjx_envs.settings import PHYSICS, TASKS  # noqa: F401  (PHYSICS re-exported)
+from mjx_envs.settings import PHYSICS, TASKS, default_config  # noqa: F401  (PHYSICS re-exported)
 
 HER_MODES = ("future", "final", "none")
 OTHER_ACTIONS = ("buffer", "policy")
@@ -252,11 +252,31 @@ pot from scratch"). Test episodes always use the standard task
 (mjx_envs.settings.test_overrides)."""
 
 
-def preset_env(task: str) -> dict:
-    """The env overrides of `task`'s training preset (TASK_ENV_PRESETS; {} for most tasks)."""
+ROBUST_ENV = dict(obs_noise=0.015, obs_dropout=0.1, obs_bias=0.005, latency=2,
+                  base_offset=0.005, base_yaw=2.0, finger_force=0.2, action_scale=0.1,
+                  object_mass=0.3, object_size=0.002, object_friction=0.3, table_height=0.005)
+"""Bounds of the `--robust` training preset (each episode draws its values up to them;
+mjx_envs/perturb.py, mjx_envs/randomize.py): observation noise up to 1.5 cm std, 10 %
+object-observation dropout, up to 5 mm of bias, 0-2 control steps of action latency, and
+moderate physics randomization (the object fields only in the tasks that have an object).
+Chosen to cover the evaluation point of docs/RESULTS.md ("Robustness": 1 cm noise + 1 step of
+latency) with margin; test episodes stay nominal (settings.TRAINING_ONLY_FIELDS)."""
+
+
+def robust_env(task: str) -> dict:
+    """The ROBUST_ENV bounds of the fields `task` has (the `--robust` training preset)."""
     if task not in TASK_PRESETS:
         raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
-    return dict(TASK_ENV_PRESETS.get(task, {}))
+    fields = default_config(task)
+    return {k: v for k, v in ROBUST_ENV.items() if hasattr(fields, k)}
+
+
+def preset_env(task: str, robust: bool = False) -> dict:
+    """The env overrides of `task`'s training preset (TASK_ENV_PRESETS; {} for most tasks),
+    plus `robust_env(task)` when `robust`."""
+    if task not in TASK_PRESETS:
+        raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
+    return {**TASK_ENV_PRESETS.get(task, {}), **(robust_env(task) if robust else {})}
 
 
 def current_device() -> str:

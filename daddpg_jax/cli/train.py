@@ -9,6 +9,7 @@ Examples
   daddpg-train --config runs/push_maddpg/config.json --seed 1   # rerun a recorded config
   daddpg-train --task reach --set gamma=0.95 --set hidden=64,64 --env team_scale=0.5
   daddpg-train --task pickup --demos 100             # + 100 scripted demonstrations
+  daddpg-train --task push --robust                  # randomized physics, noisy late obs
   daddpg-train --task push --out runs/p --coordinator node0:12345 --num-processes 2 \
       --process-id 0                                 # one of 2 processes (docs/SCALING.md)
 (`python experiments/run.py ...` is the same command.)
@@ -37,6 +38,7 @@ from daddpg_jax.algo.config import (
     build_config,
     preset,
     preset_env,
+    robust_env,
 )
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
 from mjx_envs import schema, settings
@@ -125,6 +127,11 @@ def build_parser(device: str | None = None):
                    help="override any training field (listed below); repeatable")
     p.add_argument("--env", action="append", metavar="KEY=VALUE", default=[],
                    help="override any env field of the task (listed below); repeatable")
+    p.add_argument("--robust", action="store_true",
+                   help="train with the robust preset: per-episode observation noise, "
+                        "dropout, bias, action latency and physics randomization "
+                        "(daddpg_jax.algo.config.ROBUST_ENV; test episodes stay nominal; "
+                        "--env overrides single fields; docs/ENVIRONMENTS.md)")
     p.add_argument("--demos", type=int, default=None, metavar="N",
                    help="play N episodes of the task's scripted controller at the start and "
                         "train on them beside the replay, with a behaviour-cloning term (push, "
@@ -227,6 +234,9 @@ def resolve(args, parser, check_out: bool = True):
             if v is not None and v != getattr(cfg, name):
                 raise ConfigError(f"--resume: --{name.replace('_', '-')} differs from the run's "
                                   f"config ({getattr(cfg, name)!r}); start a new run instead")
+        if args.robust:
+            raise ConfigError("--resume: --robust is decided by the run's config; start a new "
+                              "run instead")
         if args.demos is not None and args.demos != cfg.n_demos:
             raise ConfigError(f"--resume: --demos differs from the run's config "
                               f"({cfg.n_demos}); start a new run instead")
@@ -245,6 +255,8 @@ def resolve(args, parser, check_out: bool = True):
         task = args.task or "reach"
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
         run_dir = None
+    if args.robust and not args.resume:
+        env_over.update(robust_env(cfg.task))
     over = {k: getattr(args, k) for k in _FIELD_FLAGS if getattr(args, k) is not None}
     over.update(schema.parse_overrides(TrainConfig, args.set, "--set"))
     if args.epochs is not None:
