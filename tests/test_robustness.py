@@ -44,7 +44,8 @@ def test_cli_writes_table_json_and_plot(tmp_path, capsys):
     data = json.loads((out / "robustness.json").read_text())
     assert [r["success_mean"] for r in data["at_rows"]] == [0.7, 0.9]
     assert (out / "robustness.png").stat().st_size > 1000
-    assert (out / "robustness.csv").read_text().splitlines()[0].startswith("obs_noise,latency,group")
+    header = (out / "robustness.csv").read_text().splitlines()[0]
+    assert header.startswith("obs_noise,latency,group")
 
 
 @pytest.mark.parametrize("argv, message", [
