@@ -255,7 +255,7 @@ def resolve(args, parser, check_out: bool = True):
         task = args.task or "reach"
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
         run_dir = None
-    if args.robust and not args.resume:
+    if args.robust:   # a resume refused --robust above
         env_over.update(robust_env(cfg.task))
     over = {k: getattr(args, k) for k in _FIELD_FLAGS if getattr(args, k) is not None}
     over.update(schema.parse_overrides(TrainConfig, args.set, "--set"))
