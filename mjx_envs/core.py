@@ -95,6 +95,9 @@ class DualArmEnv:
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
         # static: with every perturbation field 0 the env has no perturbation code nor carry
         self.perturbation = perturb.Perturbation.from_config(cfg)
+        # static: the policy's last k actions end each arm's observation (0 = none, no carry)
+        self.action_history = int(cfg.action_history)
+        self.obs_size = obs_lib.obs_size(self.action_history)
 
     # -- rewards ----------------------------------------------------------------------------------
 
@@ -216,11 +219,16 @@ class DualArmEnv:
                                         obs["observation"])
             obs = dict(obs, observation=seen)
             info = dict(info, perturb=dict(carry, key=k_carry))
+        if self.action_history:
+            hist = obs_lib.empty_action_history(jnp, self.action_history)
+            obs = dict(obs, observation=obs_lib.with_action_history(jnp, obs["observation"], hist))
+            info = dict(info, action_history=hist)
         return State(data=data, obs=obs, reward=jnp.zeros((NUM_ARMS,), jnp.float32),
                      done=jnp.zeros((), jnp.float32), metrics=metrics, info=info)
 
     def step(self, state: State, action) -> State:
         a = jnp.clip(jnp.asarray(action, jnp.float32).reshape(NUM_ARMS, 4), -1.0, 1.0)
+        chosen = a
         p = self.perturbation
         if p.active:
             carry = state.info["perturb"]
@@ -251,6 +259,10 @@ class DualArmEnv:
                 seen, carry = perturb.observe(jnp, SAMPLER, k_obs, p, carry, obs["observation"])
                 obs = dict(obs, observation=seen)
             info = dict(info, perturb=dict(carry, key=key))
+        if self.action_history:
+            hist = obs_lib.push_action(jnp, state.info["action_history"], chosen)
+            obs = dict(obs, observation=obs_lib.with_action_history(jnp, obs["observation"], hist))
+            info = dict(info, action_history=hist)
         done = (step >= self.episode_length).astype(jnp.float32)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 

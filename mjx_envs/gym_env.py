@@ -17,7 +17,8 @@ trained by ``daddpg_jax`` behaves the same here.
 Spaces
 - observation: ``Dict(observation=Box[50], achieved_goal=Box[6], desired_goal=Box[6])``,
   float32: the env's per-arm arrays ``[2, 25]``, ``[2, 3]``, ``[2, 3]`` flattened arm-major
-  (left arm first).
+  (left arm first). With ``action_history=k`` each arm's array is ``[25 + 4 k]`` (its last k
+  actions appended, as in the JAX env): ``Box[2 * (25 + 4 k)]``.
 - action: ``Box[8]`` in [-1, 1]: per arm [dx, dy, dz, finger] (out-of-range values clipped).
 
 Episodes: fixed length (``episode_length``, 50): ``terminated`` is always False and
@@ -122,7 +123,9 @@ class DualUR3GoalEnv(gym.Env):
         self._render_size = (int(width), int(height))
         self._renderer = None
 
-        n_obs = NUM_ARMS * obs_lib.OBS_SIZE
+        self.action_history = int(cfg.action_history)
+        self._hist = obs_lib.empty_action_history(np, self.action_history)
+        n_obs = NUM_ARMS * obs_lib.obs_size(self.action_history)
         box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
         self.observation_space = spaces.Dict(
             {"observation": box(n_obs), "achieved_goal": box(NUM_ARMS * 3),
@@ -160,7 +163,10 @@ class DualUR3GoalEnv(gym.Env):
 
     def _observe(self, res) -> tuple[dict, dict]:
         """(observation dict, info) from the simulator's `StepResult`."""
-        o = {"observation": res.observation.reshape(-1),
+        obs = res.observation
+        if self.action_history:
+            obs = obs_lib.with_action_history(np, obs, self._hist)
+        o = {"observation": obs.reshape(-1),
              "achieved_goal": res.achieved_goal.reshape(-1),
              "desired_goal": res.desired_goal.reshape(-1)}
         contact, terms = self.sim.info_terms(res.arm_clearance)
@@ -177,6 +183,7 @@ class DualUR3GoalEnv(gym.Env):
         res = self.sim.reset(self.np_random, goal=options.get("goal"), qpos=options.get("qpos"))
         self._t = 0
         self._needs_reset = False
+        self._hist = obs_lib.empty_action_history(np, self.action_history)
         return self._observe(res)
 
     def step(self, action):
@@ -184,6 +191,8 @@ class DualUR3GoalEnv(gym.Env):
             raise RuntimeError("step() after the end of an episode (or before reset()); "
                                "call reset()")
         res = self.sim.step(np.asarray(action, np.float32))
+        if self.action_history:
+            self._hist = obs_lib.push_action(np, self._hist, action)
         self._t += 1
         o, info = self._observe(res)
         reward = float(self.compute_reward(o["achieved_goal"], o["desired_goal"], info))

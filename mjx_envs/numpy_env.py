@@ -59,7 +59,7 @@ SAMPLER = rules.NumpySampler()
 class StepResult:
     """What the robot knows after a control step (all NumPy, float32)."""
 
-    observation: np.ndarray  # [2, 25]
+    observation: np.ndarray  # [2, 25] (the sensor observation; no action history)
     achieved_goal: np.ndarray  # [2, 3]
     desired_goal: np.ndarray  # [2, 3]
     link_points: np.ndarray  # [2, 5, 3] shoulder, elbow, wrist 1, flange, tool centre

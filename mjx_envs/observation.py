@@ -20,6 +20,14 @@ grip_velp             3      gripper linear velocity, * dt
 finger_vel            2      finger velocities, * dt
 ====================  =====  ==================================================
 
+With the task field ``action_history = k > 0`` each arm's observation ends with one more field,
+``action_history`` (4 k values): that arm's own last k actions as the policy chose them
+(dx, dy, dz, finger; the newest first, clipped to [-1, 1], before any action latency; zeros
+before the first step). Under latency the actions already sent but not yet applied are then
+part of what the policy sees. ``obs_fields(k)``, ``obs_layout(k)`` and ``obs_size(k)`` give
+that layout; ``with_action_history`` and ``push_action`` are the code the envs and the robot
+client share.
+
 Object terms are zero in tasks without an object (reach). Velocities are multiplied by the
 control period ``dt`` (metres per control step), as in the Fetch tasks.
 
@@ -50,15 +58,51 @@ OBS_FIELDS: tuple[tuple[str, int], ...] = (
     ("finger_vel", 2),
 )
 OBS_SIZE = sum(n for _, n in OBS_FIELDS)
+"""the sensor observation's length per arm (without an action history)"""
+ARM_ACTION_SIZE = 4
+"""one arm's action: dx, dy, dz, finger"""
 
 
-def obs_layout() -> dict[str, tuple[int, int]]:
+def obs_fields(action_history: int = 0) -> tuple[tuple[str, int], ...]:
+    """(name, size) of each field of one arm's observation, ``action_history`` last when on."""
+    k = int(action_history)
+    return OBS_FIELDS + ((("action_history", ARM_ACTION_SIZE * k),) if k > 0 else ())
+
+
+def obs_size(action_history: int = 0) -> int:
+    """One arm's observation length: 25, plus 4 per remembered action."""
+    return sum(n for _, n in obs_fields(action_history))
+
+
+def obs_layout(action_history: int = 0) -> dict[str, tuple[int, int]]:
     """Field name -> (start, stop) slice of one arm's observation vector."""
     out, i = {}, 0
-    for name, n in OBS_FIELDS:
+    for name, n in obs_fields(action_history):
         out[name] = (i, i + n)
         i += n
     return out
+
+
+def empty_action_history(xp, action_history: int, batch_shape=()):
+    """The history at reset: zeros [..., k, 2, 4] (no action chosen yet)."""
+    return xp.zeros(tuple(batch_shape) + (int(action_history), len(ARMS), ARM_ACTION_SIZE),
+                    dtype=xp.float32)
+
+
+def push_action(xp, history, action):
+    """The history [..., k, 2, 4] after the policy chose ``action`` ([..., 8] or [..., 2, 4];
+    clipped to [-1, 1]): the newest first, the oldest dropped."""
+    a = xp.clip(xp.asarray(action, dtype=xp.float32), -1.0, 1.0)
+    a = a.reshape(history.shape[:-3] + (1, len(ARMS), ARM_ACTION_SIZE))
+    return xp.concatenate([a, history[..., :-1, :, :]], axis=-3)
+
+
+def with_action_history(xp, obs, history):
+    """Each arm's observation [..., 2, n] followed by its own actions of ``history``
+    [..., k, 2, 4], newest first: [..., 2, n + 4 k]."""
+    h = xp.moveaxis(history, -3, -2)                       # [..., 2, k, 4]
+    h = h.reshape(h.shape[:-2] + (h.shape[-2] * h.shape[-1],))
+    return xp.concatenate([obs, h.astype(obs.dtype)], axis=-1)
 
 
 class SensorLayout(NamedTuple):

@@ -60,6 +60,12 @@ class TaskConfig:
                            "steps, the last one held in between; 0 or 1 = every step", low=0)
     latency: int = spec(0, "action perturbation: actions applied k control steps late (no "
                         "motion before the first arrives); 0 = off", low=0)
+    action_history: int = spec(0, "observation: each arm's own last k actions (newest first, "
+                                "zeros before the first step) appended to its observation, "
+                                "25 + 4 k values per arm (mjx_envs/observation.py); lets a "
+                                "policy see the actions that latency still holds back; kept in "
+                                "test episodes and exports (the policy's input); 0 = off",
+                                low=0, high=8)
     perturb_exact: bool = spec(False, "false: the perturbation and randomization fields "
                                "(obs_*, latency and those of RANDOMIZATION_FIELDS) are bounds, "
                                "each episode draws its values up to them (training "

@@ -182,17 +182,20 @@ def test_settings_come_from_mjx_envs_settings():
         NumpyDualArmEnv(task="juggle")
 
 
-@pytest.mark.parametrize("task", ["push", "pickup"])
-def test_same_trajectory_as_the_trainers_c_engine_env(task):
+@pytest.mark.parametrize("task, over", [("push", {}), ("pickup", {}),
+                                        ("push", {"action_history": 2})])
+def test_same_trajectory_as_the_trainers_c_engine_env(task, over):
     """From the JAX env's initial state and goal, 8 random actions give the same observations
-    (float32 rounding) and per-step rewards as the trainer's C-engine env."""
+    (float32 rounding; with an action history, the same remembered actions) and per-step
+    rewards as the trainer's C-engine env."""
     import jax
 
     import mjx_envs
 
-    jenv = mjx_envs.make(task, physics="c")
+    jenv = mjx_envs.make(task, physics="c", **over)
     st = jenv.reset(jax.random.PRNGKey(1))
-    env = ge.DualUR3GoalEnv(task)
+    env = ge.DualUR3GoalEnv(task, **over)
+    assert env.observation_space["observation"].shape == (2 * jenv.obs_size,)
     o, _ = env.reset(options=dict(qpos=np.asarray(st.data.qpos),
                                   goal=np.asarray(st.obs["desired_goal"])))
     np.testing.assert_allclose(o["observation"], np.asarray(st.obs["observation"]).ravel(),
@@ -200,7 +203,7 @@ def test_same_trajectory_as_the_trainers_c_engine_env(task):
     step = jax.jit(jenv.step)
     rng = np.random.default_rng(2)
     for _ in range(8):
-        a = rng.uniform(-1, 1, 8).astype(np.float32)
+        a = rng.uniform(-1.2, 1.2, 8).astype(np.float32)   # out-of-range values are clipped
         st = step(st, a)
         o, r, _, _, _ = env.step(a)
         np.testing.assert_allclose(o["observation"], np.asarray(st.obs["observation"]).ravel(),

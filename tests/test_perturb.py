@@ -66,8 +66,11 @@ def test_off_by_default_and_nothing_carried():
         cfg = settings.default_config(task)
         assert not perturb.Perturbation.from_config(cfg).active
         assert all(getattr(cfg, f) == 0 for f in perturb.FIELDS) and not cfg.perturb_exact
-    s = mjx_envs.make("reach", physics="c").reset(jax.random.PRNGKey(0))
-    assert "perturb" not in s.info
+        assert cfg.action_history == 0
+    env = mjx_envs.make("reach", physics="c")
+    s = env.reset(jax.random.PRNGKey(0))
+    assert "perturb" not in s.info and "action_history" not in s.info
+    assert env.obs_size == perturb.OBS_SIZE == 25
     assert settings.test_overrides("reach")["latency"] == 0
     assert isinstance(settings.test_overrides("reach")["obs_period"], int)
 
@@ -146,6 +149,30 @@ def test_latency_applies_actions_late(nominal):
     np.testing.assert_array_equal(_obs(*late), _obs(*ref))
 
 
+def test_action_history_appends_the_chosen_actions_and_changes_nothing_else():
+    """action_history = 2 under one step of latency: each arm's observation ends with its own
+    last two actions as chosen (clipped, not yet applied; zeros before the first), and the
+    first 25 values and the true state are those of the env without the history."""
+    k, n = 2, perturb.OBS_SIZE
+    a = 1.2 * _actions()                                      # some values out of range
+    ref = _run(actions=a, latency=1, perturb_exact=True)
+    hist = _run(actions=a, latency=1, perturb_exact=True, action_history=k)
+    _same_truth(hist, ref)
+    o = _obs(*hist)
+    assert o.shape == (T + 1, N, 2, n + 4 * k)
+    np.testing.assert_array_equal(o[..., :n], _obs(*ref))
+    past = o[..., n:].reshape(T + 1, N, 2, k, 4)
+    chosen = np.clip(a, -1, 1).reshape(T, N, 2, 4)
+    np.testing.assert_array_equal(past[0], 0.0)
+    np.testing.assert_array_equal(past[1:, :, :, 0], chosen)
+    np.testing.assert_array_equal(past[1, :, :, 1], 0.0)
+    np.testing.assert_array_equal(past[2:, :, :, 1], chosen[:-1])
+    env = mjx_envs.make("push", physics="c", action_history=k)
+    assert env.obs_size == n + 4 * k
+    assert obs_layout(k)["action_history"] == (n, n + 4 * k)
+    assert settings.test_overrides("push").get("action_history") is None   # kept in tests
+
+
 def test_training_draws_differ_between_envs_within_the_bounds():
     env = mjx_envs.make("push", physics="c", obs_noise=0.02, obs_dropout=0.5, obs_bias=0.05,
                         obs_period=4, latency=3)
@@ -206,9 +233,11 @@ def test_numpy_and_jax_give_the_same_perturbations(exact):
         np.testing.assert_allclose(a, b, atol=1e-6)
 
 
-def test_robot_client_perturbations_match_the_trainer(tmp_path):
+@pytest.mark.parametrize("history", [0, 2])
+def test_robot_client_perturbations_match_the_trainer(tmp_path, history):
     """Sim-to-sim end to end: the client loop (NumPy env, served policy, --perturb latency and
-    period) reproduces the trainer env's rollout with the same perturbations."""
+    period) reproduces the trainer env's rollout with the same perturbations; with an action
+    history it sends the same remembered actions."""
     from daddpg_jax.algo.config import TrainConfig
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.deploy import NumpyPolicy, robot
@@ -218,7 +247,7 @@ def test_robot_client_perturbations_match_the_trainer(tmp_path):
     from mjx_envs.numpy_env import NumpyDualArmEnv
 
     pert = dict(latency=2, obs_period=3)
-    env = mjx_envs.make("reach", physics="c", **pert, perturb_exact=True)
+    env = mjx_envs.make("reach", physics="c", **pert, perturb_exact=True, action_history=history)
     cfg = TrainConfig(hidden=(16, 16), num_envs=2, n_cycles=1, n_batches=1, batch_size=8,
                       buffer_size=200, n_test_episodes=2, seed=5)
     fns = make_train_fns(env, cfg)
@@ -229,7 +258,10 @@ def test_robot_client_perturbations_match_the_trainer(tmp_path):
         s = step(s, fns.act(state, s.obs["observation"], s.obs["desired_goal"]))
     path = export_state(state, cfg, env, str(tmp_path / "p.npz"))
     settings_ = _env_settings(env)
-    srv = PolicyServer(NumpyPolicy.load(path), port=0).start()
+    policy = NumpyPolicy.load(path)
+    assert policy.obs_size == env.obs_size == 25 + 4 * history
+    assert ("action_history" in policy.obs_layout) == bool(history)
+    srv = PolicyServer(policy, port=0).start()
     try:
         client = PolicyClient(srv.url, timeout=5.0)
         safety = SafetyFilter(SafetyLimits.from_env(settings_, min_clearance=-1e9,

@@ -283,7 +283,8 @@ def _episode_summary(res, stops, errors, clear_min, rtts, complete=True) -> dict
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
-                perturbation=None, perturb_rng: np.random.Generator | None = None) -> dict:
+                perturbation=None, perturb_rng: np.random.Generator | None = None,
+                action_history: int | None = None) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
@@ -299,8 +300,18 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     perturbation: a ``mjx_envs.perturb.Perturbation`` (sim-to-sim: the trainer's observation
     noise, dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to
     what the policy sees and to the actions it sends; the safety layer sees the true state.
+    action_history: the policy's ``action_history`` k (its last k actions end each arm's
+    observation, `mjx_envs.observation.with_action_history`); None = ``env.config``'s (0
+    without one). The history holds the actions the service answered, before any latency; a
+    held period (missed deadline) counts as the zero action.
     Returns the summary.
     """
+    from mjx_envs import observation as obs_lib
+
+    if action_history is None:
+        action_history = getattr(getattr(env, "config", None), "action_history", 0)
+    k_hist = int(action_history)
+    hist = obs_lib.empty_action_history(np, k_hist)
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
@@ -316,7 +327,8 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     clear_min = res.arm_clearance
     for step in range(env.episode_length):
         t0 = clock()
-        answer, info = client.act(seen, res.desired_goal)
+        asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen
+        answer, info = client.act(asked, res.desired_goal)
         rtt = clock() - t0
         rtts.append(rtt * 1e3)
         action = None if answer is None else safety.validate_action(answer)
@@ -328,12 +340,16 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             errors.append(why)
             decision = safety.hold(env.target, reason="late" if late else "stop")
             stops += 1
+            chosen = np.zeros(2 * obs_lib.ARM_ACTION_SIZE, np.float32)
         else:
+            chosen = action
             if pcarry is not None:
                 action, pcarry = perturb.delay(np, perturbation, pcarry, action)
             proposed, ctrl = env.command_targets(action)
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
+        if k_hist:
+            hist = obs_lib.push_action(np, hist, chosen)
         res = env.step_targets(decision.target, ctrl)
         seen = res.observation
         if pcarry is not None and perturbation.observes:

@@ -1,6 +1,6 @@
 """Scripted controllers for the contact tasks: pure functions ``obs -> action``.
 
-Each controller reads only the env's observation dict (``observation`` [..., 2, 25],
+Each controller reads only the env's observation dict (``observation`` [..., 2, obs_size],
 ``achieved_goal`` [..., 2, 3], ``desired_goal`` [..., 2, 3]) and returns the 8-d action
 [..., 8]. No hidden state: the phase of each arm (approach, descend, close, carry) is inferred
 from the observation itself, so a controller is jit-able, vmap-able and can drive the env from
