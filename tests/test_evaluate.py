@@ -88,6 +88,17 @@ def test_no_checkpoint_is_a_clear_error(tmp_path, run_dir):
         evaluation.load_policy(str(empty))
     with pytest.raises(evaluation.NoCheckpointError, match="available: \\[1\\]"):
         evaluation.load_policy(run_dir, step=7)
+    with pytest.raises(evaluation.NoCheckpointError, match="not both"):
+        evaluation.load_policy(run_dir, step=1, best=True)
+    with pytest.raises(evaluation.NoCheckpointError, match="no best checkpoint"):
+        evaluation.load_policy(str(empty), best=True)
+
+
+def test_best_checkpoint(run_dir, policy):
+    best = evaluation.load_policy(run_dir, best=True)
+    assert best.best and not policy.best and best.step == 1
+    s, _ = evaluation.evaluate(best, episodes=N_TEST)
+    assert s["best"] is True and s["checkpoint"] == 1
 
 
 def test_cli_json_and_error(run_dir, tmp_path):

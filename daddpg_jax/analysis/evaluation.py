@@ -3,13 +3,15 @@ contact, final goal distances, and an optional video.
 
     from daddpg_jax.analysis import evaluation
     policy = evaluation.load_policy("runs/reach_s0")          # latest checkpoint
+    policy = evaluation.load_policy("runs/reach_s0", best=True)   # best test success
     result, traj = evaluation.evaluate(policy, episodes=200, seed=0)
     evaluation.write_video(policy, traj, "reach.mp4", n_episodes=3)
 
 The env is rebuilt from the run's ``config.json`` (task, physics, env overrides; the
 training-only task options, ``mjx_envs.settings.TRAINING_ONLY_FIELDS``, are switched off with
 ``mjx_envs.settings.test_overrides``, as in the trainer's test episodes), the agents and
-normalizers are restored from ``RUN_DIR/checkpoints/{step}`` into a template made by
+normalizers are restored from ``RUN_DIR/checkpoints/{step}`` (``best=True``: the checkpoint with
+the best test success, ``RUN_DIR/checkpoints_best/``) into a template made by
 ``make_train_fns(...).init()`` (with a tiny replay buffer: the buffer is not needed to act), and
 N episodes run at once with deterministic actors (one vmapped, jitted rollout). Episode i's
 reset key is ``split(split(PRNGKey(seed))[0], N)[i]``, the same derivation as the trainer's
@@ -73,6 +75,7 @@ class Policy:
     env: Any
     fns: Any           # TrainFns
     state: Any         # restored TrainState
+    best: bool = False  # restored from checkpoints_best/ (the best test success)
 
 
 def test_env_overrides(task: str, env_overrides: dict | None) -> dict:
@@ -86,14 +89,18 @@ def test_env_overrides(task: str, env_overrides: dict | None) -> dict:
 test_env_overrides.__test__ = False  # not a pytest test when imported into a test module
 
 
-def load_policy(run_dir: str, step: int | None = None, physics: str | None = None) -> Policy:
-    """Rebuilds the run's env and restores checkpoint ``step`` (default: latest)."""
+def load_policy(run_dir: str, step: int | None = None, physics: str | None = None,
+                best: bool = False) -> Policy:
+    """Rebuilds the run's env and restores checkpoint ``step`` (default: latest), or with
+    ``best`` the run's best checkpoint (the epoch of its best test success)."""
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
     from daddpg_jax.running.runner import make_env
 
+    if best and step is not None:
+        raise NoCheckpointError("give a checkpoint step or best, not both")
     try:
-        ckpt.check_run_dir(run_dir, step)
+        ckpt.check_run_dir(run_dir, step, best=best)
     except ckpt.RunDirError as e:
         raise NoCheckpointError(str(e)) from None
     cfg, payload = ckpt.load_config(run_dir)
@@ -104,8 +111,8 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     cfg = cfg.replace(buffer_size=1, n_demos=0)
     env = make_env(cfg, test_env_overrides(cfg.task, payload.get("env_overrides")))
     fns = make_train_fns(env, cfg)
-    state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False)
-    return Policy(run_dir, int(step), cfg, payload, env, fns, state)
+    state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False, best=best)
+    return Policy(run_dir, int(step), cfg, payload, env, fns, state, best=bool(best))
 
 
 _ROLLOUTS: dict = {}
@@ -174,7 +181,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
     cfg = policy.cfg
     summary = {
         "run_dir": os.path.abspath(policy.run_dir),
-        "checkpoint": policy.step,
+        "checkpoint": policy.step, "best": policy.best,
         "env_steps": int(row["env_steps"]) if row else None,
         "task": cfg.task, "algo": cfg.algo, "physics": getattr(policy.env, "physics", cfg.physics),
         "episodes": n, "seed": seed,

@@ -36,6 +36,11 @@ def build_parser():
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by experiments/run.py")
     p.add_argument("--step", type=int, default=None,
                    help="checkpoint (epoch) to load (default: the latest)")
+    p.add_argument("--best", action="store_true",
+                   help="load the run's best checkpoint (checkpoints_best/: the epoch of its "
+                        "best test success) instead of the latest; evaluate it with another "
+                        "--seed than the run's eval_seed to avoid measuring on the episodes "
+                        "that chose it")
     p.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
     p.add_argument("--seed", type=int, default=None,
                    help="seed of the evaluation episodes (default: the run's eval_seed)")
@@ -81,9 +86,10 @@ def _perturbation_grid(policy, args) -> int:
 
     rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report)
     meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
+                best=policy.best,
                 task=policy.cfg.task, algo=policy.cfg.algo,
                 title=f"{policy.cfg.task} / {os.path.basename(os.path.abspath(policy.run_dir))}"
-                      f" / checkpoint {policy.step}")
+                      f" / {'best ' if policy.best else ''}checkpoint {policy.step}")
     paths = perturbation.write_outputs(rows, grid, args.out, meta)
     print("wrote " + ", ".join(paths.values()))
     return 0
@@ -104,7 +110,8 @@ def main(argv=None) -> int:
     from daddpg_jax.analysis import evaluation
 
     try:
-        policy = evaluation.load_policy(args.run_dir, args.step, physics=args.physics)
+        policy = evaluation.load_policy(args.run_dir, args.step, physics=args.physics,
+                                        best=args.best)
     except evaluation.NoCheckpointError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
