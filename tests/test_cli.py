@@ -10,6 +10,7 @@ import pytest
 
 from daddpg_jax.algo.config import (
     ROBUST_ENV,
+    ROBUST_OBS,
     TrainConfig,
     build_config,
     current_device,
@@ -90,14 +91,16 @@ def test_robust_adds_the_robust_bounds_that_the_task_has(tmp_path):
     """--robust: the ROBUST_ENV bounds of the task's fields on top of the task's env preset;
     --env still overrides single fields; reach has no object fields; a resume refuses it."""
     _, env_over, _ = _resolve("--task", "pickup", "--robust", "--env", "latency=1")
-    assert env_over == {**preset_env("pickup"), **ROBUST_ENV, "latency": 1}
+    assert env_over == {**preset_env("pickup"), **ROBUST_ENV, **ROBUST_OBS, "latency": 1}
     _, env_over, _ = _resolve("--task", "reach", "--robust")
     assert env_over == robust_env("reach") == preset_env("reach", robust=True)
     assert "object_mass" not in env_over and env_over["obs_noise"] == ROBUST_ENV["obs_noise"]
-    assert set(env_over) == set(ROBUST_ENV) - {"object_mass", "object_size",
-                                               "object_friction", "table_height"}
-    # every bound is a training randomization: test episodes stay nominal
+    assert set(env_over) == (set(ROBUST_ENV) | set(ROBUST_OBS)) - {
+        "object_mass", "object_size", "object_friction", "table_height"}
+    # every bound is a training randomization: test episodes stay nominal; the action history
+    # is the policy's input: test episodes keep it
     assert set(ROBUST_ENV) <= set(settings.TRAINING_ONLY_FIELDS)
+    assert not set(ROBUST_OBS) & set(settings.test_overrides("pickup"))
     for task in settings.TASKS:
         settings.task_config(task, **preset_env(task, robust=True))   # valid everywhere
     # a recorded config keeps its own env fields and gains the bounds

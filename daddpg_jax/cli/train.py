@@ -130,8 +130,10 @@ def build_parser(device: str | None = None):
     p.add_argument("--robust", action="store_true",
                    help="train with the robust preset: per-episode observation noise, "
                         "dropout, bias, action latency and physics randomization "
-                        "(daddpg_jax.algo.config.ROBUST_ENV; test episodes stay nominal; "
-                        "--env overrides single fields; docs/ENVIRONMENTS.md)")
+                        "(daddpg_jax.algo.config.ROBUST_ENV; test episodes stay nominal), and "
+                        "each arm's last action in its observation (ROBUST_OBS: "
+                        "action_history=1, kept in test episodes and exports); --env overrides "
+                        "single fields; docs/ENVIRONMENTS.md")
     p.add_argument("--demos", type=int, default=None, metavar="N",
                    help="play N episodes of the task's scripted controller at the start and "
                         "train on them beside the replay, with a behaviour-cloning term (push, "
