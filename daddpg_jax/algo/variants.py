@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import dataclasses
 
+from mjx_envs.observation import ARM_ACTION_SIZE
+
 NUM_ARMS = 2
-ARM_ACTION = 4
-"""action entries per arm: [dx, dy, dz, finger]"""
+ARM_ACTION = ARM_ACTION_SIZE
+"""action entries per arm: [dx, dy, dz, finger] (mjx_envs.observation.ARM_ACTION_SIZE)"""
 
 BOTH, OWN = "both", "own"
 PER_ARM, SUM = "per_arm", "sum"
