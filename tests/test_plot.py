@@ -120,3 +120,56 @@ def test_cli_budget_cut_and_table(tmp_path):
     neg = subprocess.run([sys.executable, plot, a, "--max-wall", "0", "--out", out],
                          capture_output=True, text=True, cwd=ROOT, timeout=180)
     assert neg.returncode == 2 and "--max-wall must be > 0" in neg.stderr
+
+
+def test_group_summary_mean_std_and_levels(tmp_path):
+    # contact rates of _fake_run: 0.1 + 0.05 * epoch index
+    a = plotting.read_metrics(_fake_run(tmp_path / "a", [0.0, 0.5, 0.9, 0.8, 1.0, 0.7], 10.0))
+    b = plotting.read_metrics(_fake_run(tmp_path / "b", [0.1, 0.2, 0.3, 0.4, 0.6, 0.5], 10.0))
+    c = plotting.read_metrics(_fake_run(tmp_path / "c", [0.2, 0.3], 10.0))
+    fa = plotting.run_figures(a, last=5)
+    assert fa["final_test_success"] == pytest.approx(0.7)
+    assert fa["last_test_success"] == pytest.approx(np.mean([0.5, 0.9, 0.8, 1.0, 0.7]))
+    assert fa["best_test_success"] == pytest.approx(1.0)
+    assert fa["env_steps_to_0.5"] == 4000 and fa["env_steps_to_0.9"] == 6000
+    assert fa["last_arm_contact_rate"] == pytest.approx(0.1 + 0.05 * 3)    # epochs 1..5
+    assert fa["mean_arm_contact_rate"] == pytest.approx(0.1 + 0.05 * 2.5)
+    assert plotting.run_figures(c, last=5)["last_test_success"] == pytest.approx(0.25)
+    rows = plotting.group_summary({"x": [a, b], "y": [c]})
+    x, y = rows
+    assert (x["label"], x["runs"], y["runs"]) == ("x", 2, 1)
+    fb = plotting.run_figures(b)
+    for m in plotting.SUMMARY_METRICS[:3]:
+        v = [fa[m], fb[m]]
+        assert x[f"{m}_mean"] == pytest.approx(np.mean(v))
+        assert x[f"{m}_std"] == pytest.approx(np.std(v, ddof=1))
+    # env steps to a level: over the runs that reached it, counted
+    assert x["reached_0.5"] == 2 and x["reached_0.9"] == 1
+    assert x["env_steps_to_0.5_mean"] == pytest.approx((4000 + 10000) / 2)
+    assert x["env_steps_to_0.9_mean"] == 6000 and np.isnan(x["env_steps_to_0.9_std"])
+    assert np.isnan(y["final_test_success_std"]) and y["reached_0.5"] == 0
+    assert np.isnan(y["env_steps_to_0.5_mean"])
+    assert set(x) == set(plotting.summary_columns())
+    with pytest.raises(ValueError):
+        plotting.run_figures([])
+
+
+def test_cli_summary_csv(tmp_path):
+    a = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8], 10.0)
+    b = _fake_run(tmp_path / "b", [0.1, 0.6, 0.6], 11.0, seed=1)
+    c = _fake_run(tmp_path / "c", [0.0, 0.1, 0.3], 8.0, algo="ddpg")
+    out, summ = str(tmp_path / "cmp.png"), str(tmp_path / "summary.csv")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b, c,
+                        "--max-env-steps", "4000", "--summary", summ, "--out", out],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    with open(summ) as f:
+        rows = {row["label"]: row for row in csv.DictReader(f)}
+    assert set(rows) == {"reach/daddpg", "reach/ddpg"}
+    d = rows["reach/daddpg"]
+    assert d["runs"] == "2"
+    # cut at 4000 env steps: epochs 1-2 only
+    assert float(d["final_test_success_mean"]) == pytest.approx(0.5)
+    assert float(d["final_test_success_std"]) == pytest.approx(np.std([0.4, 0.6], ddof=1))
+    assert d["reached_0.5"] == "1"
+    assert "reach/daddpg: last-5 test success 0.28 ± 0.11" in r.stdout

@@ -4,14 +4,24 @@
 ``plot_runs``: several runs grouped by label (e.g. seeds of one configuration), mean line and a
 min-max (or +-std) band per group, in three panels: test success vs env steps, test success vs
 wall clock, arm-contact rate vs env steps (``experiments/plot.py``).
+``group_summary``: per group, the mean and standard deviation over its runs of the end-of-run
+figures (the error bars of a comparison between variants).
 """
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 
 import numpy as np
+
+from daddpg_jax.analysis.levels import first_reaching
+
+#: per-run figures that ``group_summary`` averages over a group's runs
+SUMMARY_METRICS = ("final_test_success", "last_test_success", "best_test_success",
+                   "env_steps_to_0.5", "env_steps_to_0.9", "last_arm_contact_rate",
+                   "mean_arm_contact_rate")
 
 
 def _mpl():
@@ -176,3 +186,47 @@ def plot_runs(groups: dict[str, Sequence[Sequence[dict]]], out: str, title: str 
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def run_figures(rows: Sequence[dict], last: int = 5) -> dict:
+    """One run's end-of-run figures: final, mean of the last ``last`` and best test success; env
+    steps to 0.5 and 0.9 (NaN if not reached); arm-contact rate over the last ``last`` tests
+    and over the whole run."""
+    if not rows:
+        raise ValueError("run_figures needs at least one epoch")
+    if last < 1:
+        raise ValueError(f"last must be >= 1, got {last}")
+    succ = np.array([float(r["test_success_rate"]) for r in rows])
+    contact = np.array([float(r["test_arm_contact_rate"]) for r in rows])
+    return {"final_test_success": float(succ[-1]), "last_test_success": float(succ[-last:].mean()),
+            "best_test_success": float(succ.max()),
+            "env_steps_to_0.5": first_reaching(rows, 0.5, "env_steps"),
+            "env_steps_to_0.9": first_reaching(rows, 0.9, "env_steps"),
+            "last_arm_contact_rate": float(contact[-last:].mean()),
+            "mean_arm_contact_rate": float(contact.mean())}
+
+
+def group_summary(groups: dict[str, Sequence[Sequence[dict]]], last: int = 5) -> list[dict]:
+    """One row per group: ``runs``, and for each of ``SUMMARY_METRICS`` its mean and sample
+    standard deviation (ddof 1; NaN for a single run) over the group's runs. Env steps to a
+    level average over the runs that reached it; ``reached_0.5`` / ``reached_0.9`` count them."""
+    out = []
+    for label, runs in groups.items():
+        figs = [run_figures(r, last) for r in runs]
+        row: dict = {"label": label, "runs": len(figs)}
+        for m in SUMMARY_METRICS:
+            v = np.array([f[m] for f in figs], dtype=np.float64)
+            v = v[~np.isnan(v)]
+            row[f"{m}_mean"] = float(v.mean()) if len(v) else math.nan
+            row[f"{m}_std"] = float(v.std(ddof=1)) if len(v) > 1 else math.nan
+        for level in ("0.5", "0.9"):
+            row[f"reached_{level}"] = int(sum(not math.isnan(f[f"env_steps_to_{level}"])
+                                              for f in figs))
+        out.append(row)
+    return out
+
+
+def summary_columns() -> tuple[str, ...]:
+    """Column order of ``group_summary`` rows (the CSV that ``plot.py --summary`` writes)."""
+    stats = tuple(f"{m}_{s}" for m in SUMMARY_METRICS for s in ("mean", "std"))
+    return ("label", "runs", *stats, "reached_0.5", "reached_0.9")

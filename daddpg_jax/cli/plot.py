@@ -18,11 +18,19 @@ reproduce.py's final.csv, computed over the kept epochs), e.g.
 
   python experiments/plot.py runs/push_daddpg_s0 runs/push_ddpg_s0 --max-wall 720 \
       --table push_12min.csv --out push_12min.png
+
+--summary writes one CSV row per group (label): the mean and standard deviation over its runs
+of the final, last-5 and best test success, env steps to 0.5 / 0.9 and the arm-contact rate
+(last 5 tests and whole run), also printed, e.g. to compare variants over seeds:
+
+  python experiments/plot.py runs/push_daddpg_s{0,1,2} runs/push_ddpg_s{0,1,2} \
+      --max-env-steps 80000 --summary push_80k.csv --out push_80k.png
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import sys
 
@@ -54,6 +62,10 @@ def main(argv=None) -> int:
     p.add_argument("--table", default=None, metavar="FILE.csv",
                    help="also write one row per run: final/best success, env steps and wall "
                         "clock to 0.5 and 0.9, arm-contact rate (final.csv's columns + run)")
+    p.add_argument("--summary", default=None, metavar="FILE.csv",
+                   help="also write one row per label: mean and std over its runs of the final, "
+                        "last-5 and best test success, env steps to 0.5/0.9 and the arm-contact "
+                        "rate (last 5 tests, whole run)")
     args = p.parse_args(argv)
     if args.labels is not None and len(args.labels) != len(args.runs):
         p.error(f"--labels: got {len(args.labels)} labels for {len(args.runs)} runs")
@@ -63,10 +75,12 @@ def main(argv=None) -> int:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {v}")
 
     from daddpg_jax.analysis.plotting import (
+        group_summary,
         plot_runs,
         read_metrics,
         run_config,
         run_label,
+        summary_columns,
         truncate,
     )
 
@@ -88,8 +102,6 @@ def main(argv=None) -> int:
         table.append((run, label, rows, run_config(run)))
     out = plot_runs(groups, args.out, title=args.title, band=args.band)
     if args.table:
-        import csv
-
         from daddpg_jax.analysis.reproduce import FINAL_COLUMNS
 
         with open(args.table, "w", newline="") as f:
@@ -97,6 +109,18 @@ def main(argv=None) -> int:
             w.writeheader()
             w.writerows(_table_row(*t) for t in table)
         print(f"wrote {os.path.abspath(args.table)}")
+    if args.summary:
+        rows_out = group_summary(groups)
+        with open(args.summary, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=summary_columns())
+            w.writeheader()
+            w.writerows(rows_out)
+        for r in rows_out:
+            print(f"{r['label']}: last-5 test success {r['last_test_success_mean']:.2f} "
+                  f"± {r['last_test_success_std']:.2f}, last-5 arm contact "
+                  f"{r['last_arm_contact_rate_mean']:.2f} ± {r['last_arm_contact_rate_std']:.2f} "
+                  f"(mean ± std over {r['runs']} run(s))")
+        print(f"wrote {os.path.abspath(args.summary)}")
     for label, runs in groups.items():
         last = [float(r[-1]["test_success_rate"]) for r in runs]
         finals = ", ".join(f"{v:.2f}" for v in last)
