@@ -65,21 +65,22 @@ def experiments(seeds: int, algos: Sequence[str] | None = None, ablations: bool 
 
 
 def final_row(task: str, exp: Experiment, seed: int, rows: Sequence[dict]) -> dict:
-    succ = [float(r["test_success_rate"]) for r in rows]
-    contact = [float(r["test_arm_contact_rate"]) for r in rows]
+    from daddpg_jax.analysis.plotting import run_figures
+
+    figs = run_figures(rows) if rows else {}
     last = rows[-1] if rows else {}
     return {
         "task": task, "label": exp.label, "algo": exp.algo, "her": exp.her, "seed": seed,
         "epochs": int(last.get("epoch", 0)), "env_steps": int(last.get("env_steps", 0)),
         "wall_time": float(last.get("wall_time", 0.0)),
-        "final_test_success": succ[-1] if succ else math.nan,
-        "best_test_success": max(succ) if succ else math.nan,
-        "env_steps_to_0.5": first_reaching(rows, 0.5, "env_steps"),
+        "final_test_success": figs.get("final_test_success", math.nan),
+        "best_test_success": figs.get("best_test_success", math.nan),
+        "env_steps_to_0.5": figs.get("env_steps_to_0.5", math.nan),
         "wall_time_to_0.5": first_reaching(rows, 0.5, "wall_time"),
-        "env_steps_to_0.9": first_reaching(rows, 0.9, "env_steps"),
+        "env_steps_to_0.9": figs.get("env_steps_to_0.9", math.nan),
         "wall_time_to_0.9": first_reaching(rows, 0.9, "wall_time"),
-        "final_arm_contact_rate": contact[-1] if contact else math.nan,
-        "mean_arm_contact_rate": sum(contact) / len(contact) if contact else math.nan,
+        "final_arm_contact_rate": float(last.get("test_arm_contact_rate", math.nan)),
+        "mean_arm_contact_rate": figs.get("mean_arm_contact_rate", math.nan),
     }
 
 
