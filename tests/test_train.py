@@ -1,5 +1,7 @@
 """Training loop on the toy env: determinism, compile count, checkpoints, progress, learning."""
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -124,6 +126,8 @@ def test_checkpoint_without_buffer_and_keep_last(fns, two_epochs, tmp_path):
     cfg, payload = ckpt.load_config(run)
     assert cfg == TINY and payload["env_overrides"] == {"episode_length": T}
     assert "jax" in payload["versions"]
+    # the host is recorded: the same seed may round differently on another CPU model
+    assert payload["host"]["cpu"] and payload["host"]["cores"] == os.cpu_count()
 
 
 def test_progress_callback_once_per_cycle(env):

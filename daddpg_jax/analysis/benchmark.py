@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import platform
 import resource
 import time
 
@@ -23,12 +22,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from daddpg_jax.algo import acting
+from daddpg_jax.running.host import cpu_name
 
 
 def machine_description() -> str:
     devs = jax.devices()
     kind = devs[0].device_kind if devs else "?"
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
+    return (f"{cpu_name()}, {os.cpu_count()} CPU cores, "
             f"jax backend {jax.default_backend()} ({len(devs)} x {kind})")
 
 

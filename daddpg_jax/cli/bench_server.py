@@ -17,24 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import threading
 import time
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def bench(url: str, requests: int, clients: int, warmup: int, obs_size: int, seed: int = 0) -> dict:
@@ -154,11 +141,11 @@ def main(argv=None) -> int:
             proc.wait(timeout=10)
     import numpy
 
+    from daddpg_jax.running.host import host_info
+
     args_text = " ".join(argv if argv is not None else sys.argv[1:])
     res.update(task=task, algo=algo, layer_sizes=layers, server="subprocess" if proc else url,
-               machine=dict(cpu=_cpu_name(), cores=os.cpu_count(),
-                            python=platform.python_version(), numpy=numpy.__version__,
-                            system=platform.platform()),
+               machine=dict(host_info(), numpy=numpy.__version__),
                command="python experiments/bench_server.py " + args_text)
     print(json.dumps(res, indent=2))
     if args.json:

@@ -29,6 +29,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 from flax import serialization
 
+from daddpg_jax.running.host import host_info
+
 RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
              "checkpoints_best")
 """what a training run writes in its directory"""
@@ -298,8 +300,8 @@ def _git_revision(path) -> str | None:
 
 
 def save_config(run_dir, cfg, **extra) -> str:
-    """Writes RUN_DIR/config.json: the TrainConfig, package versions, device, git revision and
-    any `extra` JSON-serializable fields (e.g. env overrides)."""
+    """Writes RUN_DIR/config.json: the TrainConfig, package versions, device, git revision, the
+    host (CPU model, cores) and any `extra` JSON-serializable fields (e.g. env overrides)."""
     os.makedirs(run_dir, exist_ok=True)
     cfg_dict = cfg.to_dict() if hasattr(cfg, "to_dict") else dataclasses.asdict(cfg)
     repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -308,7 +310,7 @@ def save_config(run_dir, cfg, **extra) -> str:
         versions={p: _version(p) for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint",
                                            "numpy", "mujoco", "mujoco-mjx", "daddpg-jax")},
         device=str(jax.devices()[0].device_kind), backend=jax.default_backend(),
-        git_revision=_git_revision(repo),
+        git_revision=_git_revision(repo), host=host_info(),
         created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **extra,
     )
