@@ -22,13 +22,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from daddpg_jax.algo import acting
-from daddpg_jax.running.host import cpu_name
+from daddpg_jax.running.host import host_info
 
 
 def machine_description() -> str:
     devs = jax.devices()
     kind = devs[0].device_kind if devs else "?"
-    return (f"{cpu_name()}, {os.cpu_count()} CPU cores, "
+    host = host_info()
+    return (f"{host['cpu']}, {host['cores']} CPU cores, "
             f"jax backend {jax.default_backend()} ({len(devs)} x {kind})")
 
 

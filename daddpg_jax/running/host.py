@@ -1,8 +1,9 @@
 """What machine a run or a benchmark ran on (standard library only).
 
-The same seed and config give bit-identical results on one host, but XLA compiles for the CPU
-it runs on, so two CPU models (or a VM moved to another host type) may round differently and
-diverge from the first updates on. config.json records the host for that reason.
+A fixed seed trains deterministically on one host (tests/test_train.py), but XLA compiles for
+the CPU it runs on, so two CPU models (or a VM moved to another host type) may round
+differently: the same seed and config gave different curves from the first update on an AMD
+EPYC and an Intel Xeon VM (docs/RESULTS.md). config.json records the host for that reason.
 """
 
 from __future__ import annotations
