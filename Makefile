@@ -1,14 +1,39 @@
 PYTHON ?= python3
-.PHONY: install test test-all train bench gpu-check lint render wheel-smoke
+.PHONY: install test test-mjx test-e2e test-slow test-ci test-all coverage train bench gpu-check \
+	lint render wheel-smoke
 
 install:
 	$(PYTHON) -m pip install -e ".[dev]"
 
+# Test tiers (markers in pyproject.toml; times in README.md, "Install and test").
+# The default tier: every package module, no MJX compile, no subprocess runs; both cores.
 test:
-	$(PYTHON) -m pytest -q
+	$(PYTHON) -m pytest -q -n 2 --dist loadfile
+
+# MJX programs (contract, parity, randomized models on MJX)
+test-mjx:
+	$(PYTHON) -m pytest -q -m "mjx and not slow"
+
+# whole runs: subprocesses, console scripts, train-kill-resume, learning checks
+test-e2e:
+	$(PYTHON) -m pytest -q -m "e2e and not slow"
+
+test-slow:
+	$(PYTHON) -m pytest -q -m slow
+
+# what CI runs: the default tier, then every other tier except slow
+test-ci: test test-mjx test-e2e
 
 test-all:
 	$(PYTHON) -m pytest -q -m ""
+
+# per-module coverage of the package by the default tier (one line per module; fails if a
+# module is not exercised at all)
+coverage:
+	$(PYTHON) -m coverage erase
+	$(PYTHON) -m coverage run -m pytest -q -p no:xdist
+	$(PYTHON) -m coverage json -q -o .coverage.json
+	$(PYTHON) tests/module_coverage.py .coverage.json
 
 train:
 	$(PYTHON) experiments/run.py --task reach

@@ -51,3 +51,14 @@ def random_batch(key, n_agents, b=B):
                 g=jax.random.normal(ks[2], (b, 2, 3)),
                 a=jax.random.uniform(ks[3], (b, 8), minval=-1, maxval=1),
                 r=-jax.random.bernoulli(ks[4], 0.5, (n_agents, b)).astype(jnp.float32))
+
+
+def call_main(main, argv) -> int:
+    """Runs a console script's ``main(argv)`` in this process (no fresh interpreter, no JAX
+    import per call) and returns its exit code as a shell would see it, argparse's SystemExit
+    included. Read what it printed with pytest's ``capsys``."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) or e.code is None else 1
+    return 0 if code is None else code

@@ -5,9 +5,15 @@ import os
 import subprocess
 import sys
 
+import pytest
+
+from daddpg_jax.cli import compare_sb3
+from tests.conftest import call_main
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+@pytest.mark.e2e
 def test_compare_ours_only_writes_results(tmp_path):
     out = str(tmp_path / "cmp")
     cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"), "--task", "reach",
@@ -21,16 +27,12 @@ def test_compare_ours_only_writes_results(tmp_path):
     assert "single" in text and "env_steps" in text
 
 
-def test_compare_rejects_unknown_method(tmp_path):
-    cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"),
-           "--methods", "ppo", "--out", str(tmp_path / "x")]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert res.returncode == 2 and "unknown method" in res.stderr
+def test_compare_rejects_unknown_method(tmp_path, capsys):
+    code = call_main(compare_sb3.main, ["--methods", "ppo", "--out", tmp_path / "x"])
+    assert code == 2 and "unknown method" in capsys.readouterr().err
 
 
 def _parse(*argv):
-    from daddpg_jax.cli import compare_sb3
-
     return compare_sb3, compare_sb3.build_parser().parse_args(list(argv))
 
 
@@ -49,6 +51,7 @@ def test_sb3_schedule_matches_ours_per_cycle():
     assert cmp.sb3_eval_every(args) == 50 * 8 * 50
 
 
+@pytest.mark.e2e
 def test_compare_ours_many_envs_settings(tmp_path):
     out = str(tmp_path / "cmp")
     cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"), "--task", "reach",
@@ -64,8 +67,6 @@ def test_compare_ours_many_envs_settings(tmp_path):
     assert steps and all(s % 400 == 0 for s in steps), steps
 
 
-def test_compare_rejects_bad_num_envs(tmp_path):
-    cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"),
-           "--num-envs", "0", "--out", str(tmp_path / "x")]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert res.returncode == 2 and "--num-envs must be >= 1" in res.stderr
+def test_compare_rejects_bad_num_envs(tmp_path, capsys):
+    code = call_main(compare_sb3.main, ["--num-envs", "0", "--out", tmp_path / "x"])
+    assert code == 2 and "--num-envs must be >= 1" in capsys.readouterr().err

@@ -18,12 +18,14 @@ import mjx_envs
 from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.cli import export as export_cli
 from daddpg_jax.deploy import FORMAT_VERSION, NumpyPolicy, PolicyFormatError
 from daddpg_jax.deploy.policy import env_settings, task_settings
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.export import ExportError, export_run, export_state
 from mjx_envs import observation as obs_lib
 from mjx_envs import schema, settings
+from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ALGOS = variants.ALGOS
@@ -278,26 +280,22 @@ def test_export_run_restores_checkpoint(run_with_checkpoint, exported, tmp_path)
         export_run(run, str(tmp_path / "x.npz"), step=5)
 
 
-def test_export_cli(run_with_checkpoint, tmp_path):
+def test_export_cli(run_with_checkpoint, tmp_path, capsys):
+    """daddpg-export's main in this process (~1 s)."""
     run, _ = run_with_checkpoint
-    script = os.path.join(ROOT, "experiments", "export.py")
     out = tmp_path / "cli.npz"
-    r = subprocess.run([sys.executable, script, run, "--step", "2", "--out", str(out)],
-                       capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert r.returncode == 0, r.stderr
-    assert "wrote" in r.stdout and out.exists()
+    assert call_main(export_cli.main, [run, "--step", "2", "--out", out]) == 0
+    assert "wrote" in capsys.readouterr().out and out.exists()
     assert NumpyPolicy.load(out).meta["source"]["checkpoint_step"] == 2
     # a run without a checkpoint: clear message, non-zero exit, no traceback
     empty = tmp_path / "empty_run"
     ckpt.save_config(str(empty), tiny_config("daddpg"), env_overrides={})
-    r = subprocess.run([sys.executable, script, str(empty), "--out", str(tmp_path / "e.npz")],
-                       capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert r.returncode != 0
-    assert "has no checkpoint" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([sys.executable, script, str(tmp_path / "nowhere"), "--out",
-                        str(tmp_path / "e.npz")], capture_output=True, text=True, timeout=300,
-                       cwd=ROOT)
-    assert r.returncode != 0 and "does not exist" in r.stderr and "Traceback" not in r.stderr
+    assert call_main(export_cli.main, [empty, "--out", tmp_path / "e.npz"]) != 0
+    err = capsys.readouterr().err
+    assert "has no checkpoint" in err and "Traceback" not in err
+    assert call_main(export_cli.main, [tmp_path / "nowhere", "--out", tmp_path / "e.npz"]) != 0
+    err = capsys.readouterr().err
+    assert "does not exist" in err and "Traceback" not in err
 
 
 DEPLOY_FREE_SCRIPT = textwrap.dedent("""

@@ -79,6 +79,7 @@ def _params(run_dir, tmp_path, name):
         return {k: z[k] for k in z.files if z[k].dtype.kind == "f"}
 
 
+@pytest.mark.e2e
 def test_two_processes_train_like_one_process_with_two_devices_and_resume(tmp_path):
     job, ref = tmp_path / "job", tmp_path / "ref"
     results = _job([*TINY_ARGS, "--epochs", "2", "--out", str(job)])
@@ -113,6 +114,7 @@ def test_two_processes_train_like_one_process_with_two_devices_and_resume(tmp_pa
     assert p.returncode == 2 and "resume it on the same layout" in se
 
 
+@pytest.mark.e2e
 def test_processes_with_different_configs_stop_with_an_error(tmp_path):
     out = tmp_path / "run"
     results = _job([*TINY_ARGS, "--epochs", "1", "--out", str(out)], timeout=120,
@@ -123,6 +125,7 @@ def test_processes_with_different_configs_stop_with_an_error(tmp_path):
     assert not (out / "checkpoints").exists()
 
 
+@pytest.mark.e2e
 def test_unreachable_coordinator_is_a_clear_error_not_a_hang(tmp_path):
     t0 = time.monotonic()
     p = _train([*TINY_ARGS, "--out", str(tmp_path / "run"), "--coordinator",

@@ -25,7 +25,7 @@ from mjx_envs.tasks import scripted
 from tests.env_fixtures import RecordingSampler, ReplaySampler
 
 TASKS = ("push", "pickup", "pot")
-ENGINES = ("c", "mjx")
+ENGINES = ("c", pytest.param("mjx", marks=pytest.mark.mjx))
 B, T_SHORT = 2, 10
 # MJX vs C over 10 control steps of the scripted controller's actions (same actions replayed on
 # both engines): gripper positions and finger openings agree within PARITY_POS_M (measured
@@ -235,6 +235,7 @@ def test_contract(task, physics):
     assert ol.trace_count == 1
 
 
+@pytest.mark.mjx
 @pytest.mark.parametrize("task", TASKS)
 def test_engine_parity_short_horizon(task):
     c = open_loop_result(task, "c")[2]["observation"]

@@ -32,7 +32,7 @@ from tests.env_fixtures import (
 )
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ENGINES = ["c", "mjx"]
+ENGINES = ["c", pytest.param("mjx", marks=pytest.mark.mjx)]
 # Engine parity tolerance on every observation entry of a 50-step reach episode (measured max
 # 3.8 mm on positions, 5.4 mm on velocities*dt; see
 # docs/ENVIRONMENTS.md): positions agree to this many metres.
@@ -221,6 +221,7 @@ def test_reset_determinism(physics):
 
 # -- parity ---------------------------------------------------------------------------------
 
+@pytest.mark.mjx
 def test_engine_parity_reach():
     c, m = rollout("c"), rollout("mjx")
     np.testing.assert_array_equal(c.obs["desired_goal"], m.obs["desired_goal"])
@@ -266,6 +267,7 @@ def test_scenes_load_from_the_package_assets():
         model_lib.load_model("scene_reach.xml", cone="round")
 
 
+@pytest.mark.mjx
 def test_mjx_backend_import_prints_no_warp_noise():
     code = ("import mjx_envs\n"
             "env = mjx_envs.make('reach', physics='mjx')\n"

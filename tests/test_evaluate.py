@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from daddpg_jax.analysis import evaluation
+from daddpg_jax.cli import evaluate as evaluate_cli
 from daddpg_jax.running.runner import train
 from tests import conftest
+from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 N_TEST = 12
@@ -101,18 +103,18 @@ def test_best_checkpoint(run_dir, policy):
     assert s["best"] is True and s["checkpoint"] == 1
 
 
-def test_cli_json_and_error(run_dir, tmp_path):
-    script = os.path.join(ROOT, "experiments", "evaluate.py")
-    out = subprocess.run([sys.executable, script, run_dir, "--episodes", "8", "--seed", "3",
-                          "--json"], capture_output=True, text=True, cwd=ROOT, timeout=300)
-    assert out.returncode == 0, out.stderr[-2000:]
-    s = json.loads(out.stdout)
+def test_cli_json_and_error(run_dir, tmp_path, capsys):
+    """daddpg-evaluate's main in this process (~2 s)."""
+    code = call_main(evaluate_cli.main, [run_dir, "--episodes", "8", "--seed", "3", "--json"])
+    out = capsys.readouterr()
+    assert code == 0, out.err[-2000:]
+    s = json.loads(out.out)
     assert s["episodes"] == 8 and s["seed"] == 3 and len(s["success_ci95"]) == 2
-    bad = subprocess.run([sys.executable, script, str(tmp_path)], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300)
-    assert bad.returncode == 2 and "no config.json" in bad.stderr
+    assert call_main(evaluate_cli.main, [tmp_path]) == 2
+    assert "no config.json" in capsys.readouterr().err
 
 
+@pytest.mark.e2e
 def test_video(run_dir, tmp_path):
     """--video through the CLI (a fresh process, so MUJOCO_GL=egl applies before MuJoCo loads)."""
     path = str(tmp_path / "eval.mp4")
@@ -137,8 +139,6 @@ def test_video(run_dir, tmp_path):
 
 
 def test_cli_refuses_mjx_on_cpu_at_large_batches(run_dir, capsys):
-    from daddpg_jax.cli import evaluate as evaluate_cli
-
     assert evaluate_cli.main([run_dir, "--physics", "mjx", "--episodes", "256"]) == 2
     err = capsys.readouterr().err
     assert "hangs on a CPU" in err and "--physics c" in err

@@ -32,6 +32,7 @@ def smoke(tmp_path_factory):
     return report, (out / gpu_check.MD_NAME).read_text(), out
 
 
+@pytest.mark.e2e
 def test_smoke_json_has_every_stage_with_figures(smoke):
     report, _, out = smoke
     assert report["smoke"] is True and report["finished"] and report["wall_s"] < 120
@@ -61,6 +62,7 @@ def test_smoke_json_has_every_stage_with_figures(smoke):
         assert (out / "runs" / task / "metrics.csv").exists()
 
 
+@pytest.mark.e2e
 def test_smoke_markdown_has_every_table(smoke):
     _, md, _ = smoke
     assert md.startswith("# GPU check (smoke run")
@@ -72,6 +74,7 @@ def test_smoke_markdown_has_every_table(smoke):
     assert "| reach | 4 | 32 × 4 | 2 |" in md
 
 
+@pytest.mark.e2e
 def test_failed_and_cut_off_stages_are_recorded(tmp_path, monkeypatch):
     """MJX at 256 envs on a CPU is refused (a recorded error, no hang) and the next stage runs;
     a stage past its time cap is stopped; a failed stage sets the exit code."""

@@ -1,12 +1,14 @@
 """Learning on the real reach env (C engine) with the CLI defaults: success rises fast."""
 
 import jax
+import pytest
 
 import mjx_envs
 from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.algo.train import make_train_fns
 
 
+@pytest.mark.e2e
 def test_reach_learns_within_two_epochs():
     env = mjx_envs.make("reach", physics="c")
     cfg = TrainConfig(**preset("reach"), seed=0)

@@ -34,6 +34,7 @@ def run_2dev(body: str, timeout: int = 240) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.e2e
 def test_sharded_update_equals_unsharded_update():
     """What the trainer runs on each device: `losses.update(..., axis_name=AXIS)` on the
     device's slice of the batch under `sharding.shard_map` (agent replicated), and the
@@ -90,6 +91,7 @@ def test_sharded_update_equals_unsharded_update():
     assert out["norm"] < 1e-5, out
 
 
+@pytest.mark.e2e
 def test_two_device_toy_training_learns_and_resumes(tmp_path):
     out = run_2dev(f"""
     from daddpg_jax.running import checkpoint as ckpt
@@ -151,6 +153,7 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
     assert out["cache"] == 1
 
 
+@pytest.mark.e2e
 def test_two_device_reach_c_engine_callback_per_shard():
     out = run_2dev("""
     import mjx_envs

@@ -284,6 +284,7 @@ def test_robot_client_perturbations_match_the_trainer(tmp_path, history):
 LEGACY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "legacy_reach", "run")
 
 
+@pytest.mark.e2e
 def test_evaluation_grid_is_deterministic_and_written(tmp_path):
     from daddpg_jax.analysis import evaluation, perturbation
     from daddpg_jax.cli import evaluate as cli

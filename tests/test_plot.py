@@ -4,14 +4,14 @@ files."""
 import csv
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from daddpg_jax.analysis import plotting
+from daddpg_jax.cli import plot as plot_cli
 from daddpg_jax.running.runner import METRIC_COLUMNS
+from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -60,21 +60,18 @@ def test_aggregate_mean_and_band(tmp_path):
     assert plotting.run_label(d) == "reach/daddpg+100 demos"
 
 
-def test_cli_two_runs_png(tmp_path):
+def test_cli_two_runs_png(tmp_path, capsys):
     a = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8, 1.0], 10.0)
     b = _fake_run(tmp_path / "b", [0.1, 0.6, 0.9, 1.0], 11.0, seed=1)
     c = _fake_run(tmp_path / "c", [0.0, 0.1, 0.3, 0.5], 8.0, algo="single")
     out = str(tmp_path / "cmp.png")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b, c,
-                        "--out", out, "--title", "fake"], capture_output=True, text=True,
-                       cwd=ROOT, timeout=120)
-    assert r.returncode == 0, r.stderr[-2000:]
-    assert "reach/daddpg: 2 run(s)" in r.stdout and "reach/single: 1 run(s)" in r.stdout
+    code = call_main(plot_cli.main, [a, b, c, "--out", out, "--title", "fake"])
+    r = capsys.readouterr()
+    assert code == 0, r.err[-2000:]
+    assert "reach/daddpg: 2 run(s)" in r.out and "reach/single: 1 run(s)" in r.out
     _check_png(out)
-    bad = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b,
-                          "--labels", "x", "--out", out], capture_output=True, text=True,
-                         cwd=ROOT, timeout=120)
-    assert bad.returncode != 0 and "--labels" in bad.stderr
+    assert call_main(plot_cli.main, [a, b, "--labels", "x", "--out", out]) != 0
+    assert "--labels" in capsys.readouterr().err
 
 
 def test_plot_runs_with_labels_and_single_run_curve(tmp_path):
@@ -96,14 +93,12 @@ def test_truncate_to_a_budget():
     assert plotting.truncate(rows, max_wall=5.0) == []
 
 
-def test_cli_budget_cut_and_table(tmp_path):
+def test_cli_budget_cut_and_table(tmp_path, capsys):
     a = _fake_run(tmp_path / "a", [0.0, 0.6, 0.95, 0.2], 10.0)
     b = _fake_run(tmp_path / "b", [0.1, 0.3, 0.4, 0.9, 1.0], 8.0, algo="single")
     out, table = str(tmp_path / "cut.png"), str(tmp_path / "cut.csv")
-    plot = os.path.join(ROOT, "experiments", "plot.py")
-    r = subprocess.run([sys.executable, plot, a, b, "--max-wall", "32", "--table", table,
-                        "--out", out], capture_output=True, text=True, cwd=ROOT, timeout=180)
-    assert r.returncode == 0, r.stderr[-2000:]
+    code = call_main(plot_cli.main, [a, b, "--max-wall", "32", "--table", table, "--out", out])
+    assert code == 0, capsys.readouterr().err[-2000:]
     _check_png(out)
     with open(table, newline="") as f:
         got = list(csv.DictReader(f))
@@ -114,12 +109,11 @@ def test_cli_budget_cut_and_table(tmp_path):
     assert got[1]["epochs"] == "4" and float(got[1]["best_test_success"]) == pytest.approx(0.9)
     assert float(got[1]["wall_time_to_0.9"]) == 32.0 and got[1]["algo"] == "single"
     assert got[1]["run"] == b
-    bad = subprocess.run([sys.executable, plot, a, "--max-wall", "5", "--out", out],
-                         capture_output=True, text=True, cwd=ROOT, timeout=180)
-    assert bad.returncode == 2 and "budget" in bad.stderr
-    neg = subprocess.run([sys.executable, plot, a, "--max-wall", "0", "--out", out],
-                         capture_output=True, text=True, cwd=ROOT, timeout=180)
-    assert neg.returncode == 2 and "--max-wall must be > 0" in neg.stderr
+    capsys.readouterr()
+    assert call_main(plot_cli.main, [a, "--max-wall", "5", "--out", out]) == 2
+    assert "budget" in capsys.readouterr().err
+    assert call_main(plot_cli.main, [a, "--max-wall", "0", "--out", out]) == 2
+    assert "--max-wall must be > 0" in capsys.readouterr().err
 
 
 def test_group_summary_mean_std_and_levels(tmp_path):
@@ -154,15 +148,15 @@ def test_group_summary_mean_std_and_levels(tmp_path):
         plotting.run_figures([])
 
 
-def test_cli_summary_csv(tmp_path):
+def test_cli_summary_csv(tmp_path, capsys):
     a = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8], 10.0)
     b = _fake_run(tmp_path / "b", [0.1, 0.6, 0.6], 11.0, seed=1)
     c = _fake_run(tmp_path / "c", [0.0, 0.1, 0.3], 8.0, algo="ddpg")
     out, summ = str(tmp_path / "cmp.png"), str(tmp_path / "summary.csv")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "plot.py"), a, b, c,
-                        "--max-env-steps", "4000", "--summary", summ, "--out", out],
-                       capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert r.returncode == 0, r.stderr[-2000:]
+    code = call_main(plot_cli.main, [a, b, c, "--max-env-steps", "4000", "--summary", summ,
+                                     "--out", out])
+    r = capsys.readouterr()
+    assert code == 0, r.err[-2000:]
     with open(summ) as f:
         rows = {row["label"]: row for row in csv.DictReader(f)}
     assert set(rows) == {"reach/daddpg", "reach/ddpg"}
@@ -172,4 +166,4 @@ def test_cli_summary_csv(tmp_path):
     assert float(d["final_test_success_mean"]) == pytest.approx(0.5)
     assert float(d["final_test_success_std"]) == pytest.approx(np.std([0.4, 0.6], ddof=1))
     assert d["reached_0.5"] == "1"
-    assert "reach/daddpg: last-5 test success 0.28 ± 0.11" in r.stdout
+    assert "reach/daddpg: last-5 test success 0.28 ± 0.11" in r.out

@@ -207,6 +207,7 @@ def test_finger_force_changes_the_squeeze():
     assert np.all(nom > 1e-3) and np.all(weak < nom - 1e-4)   # the weak fingers open less
 
 
+@pytest.mark.mjx
 def test_mjx_and_c_build_the_same_models_and_start_states():
     over = dict(object_mass=0.5, object_size=0.004, object_friction=0.5, table_height=0.01,
                 base_offset=0.01, base_yaw=4.0, finger_force=0.3, episode_length=T)

@@ -7,8 +7,11 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from daddpg_jax.analysis.reproduce import FINAL_COLUMNS, Experiment, experiments, final_row
+from daddpg_jax.cli import reproduce as reproduce_cli
+from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -25,11 +28,9 @@ def test_experiment_list():
     assert [(e.label, s) for e, s in experiments(1, algos=["ddpg"], first_seed=4)] == [("ddpg", 4)]
 
 
-def test_cli_rejects_negative_first_seed():
-    res = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "reproduce.py"),
-                          "--task", "reach", "--first-seed", "-1"], capture_output=True,
-                         text=True, timeout=120, cwd=ROOT)
-    assert res.returncode == 2 and "--first-seed must be >= 0" in res.stderr
+def test_cli_rejects_negative_first_seed(capsys):
+    assert call_main(reproduce_cli.main, ["--task", "reach", "--first-seed", "-1"]) == 2
+    assert "--first-seed must be >= 0" in capsys.readouterr().err
 
 
 def test_final_row_thresholds():
@@ -51,6 +52,7 @@ def test_final_row_counts_float32_rates_at_the_level():
     assert r["env_steps_to_0.9"] == 200 and r["wall_time_to_0.9"] == 20.0
 
 
+@pytest.mark.e2e
 def test_reproduce_tiny_budget_writes_outputs(tmp_path):
     out = str(tmp_path / "res")
     cmd = [sys.executable, os.path.join(ROOT, "experiments", "reproduce.py"), "--task", "reach",

@@ -8,10 +8,11 @@ import sys
 
 import pytest
 
+from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, RunDirError, train
 from tests import conftest, toy_env
-from tests.conftest import T
+from tests.conftest import T, call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = conftest.TINY.replace(n_cycles=2, n_batches=3, n_test_episodes=8, seed=3,
@@ -66,6 +67,7 @@ def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
     assert _learning_columns(_rows(b)) == _learning_columns(rows)
 
 
+@pytest.mark.e2e
 def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
     """A run whose metrics.csv predates the bc_loss/q_filter_pass columns resumes; the CSV is
     rewritten with every current column (blank where the old rows had none)."""
@@ -84,6 +86,7 @@ def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
     assert new[0]["test_success_rate"] == rows[0]["test_success_rate"]
 
 
+@pytest.mark.e2e
 def test_stop_at_success_stops_after_the_first_epoch_at_the_rate(env, tmp_path):
     run = str(tmp_path / "stop")
     res = train(TINY.replace(n_epochs=3), run, env=env, plot=False, stop_at_success=0.0)
@@ -98,6 +101,7 @@ def test_resume_without_a_run_fails_clearly(env, tmp_path):
         train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
 
 
+@pytest.mark.e2e
 def test_nonfinite_loss_stops_and_keeps_last_good_checkpoint(env, tmp_path):
     run = str(tmp_path / "nan")
     train(TINY.replace(n_epochs=1, save_buffer=False), run, env=env)
@@ -110,11 +114,9 @@ def test_nonfinite_loss_stops_and_keeps_last_good_checkpoint(env, tmp_path):
     assert [int(r["epoch"]) for r in _rows(run)] == [1]
 
 
-def test_cli_help_explains_every_flag_and_field():
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "run.py"), "--help"],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
-    text = out.stdout
+def test_cli_help_explains_every_flag_and_field(capsys):
+    assert call_main(train_cli.main, ["--help"]) == 0
+    text = capsys.readouterr().out
     for flag in ("--task", "--num-envs", "--epochs", "--seed", "--algo", "--her", "--physics",
                  "--out", "--resume", "--set", "--env", "--save-buffer", "--time-budget",
                  "--stop-at-success",
@@ -126,28 +128,23 @@ def test_cli_help_explains_every_flag_and_field():
         assert f"  {field} (" in text, field
 
 
-def test_cli_rejects_unknown_fields(tmp_path):
-    out = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "run.py"),
-                          "--set", "gama=0.9", "--out", str(tmp_path / "x")],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode != 0 and "unknown --set field 'gama'" in out.stderr
+def test_cli_rejects_unknown_fields(tmp_path, capsys):
+    assert call_main(train_cli.main, ["--set", "gama=0.9", "--out", tmp_path / "x"]) != 0
+    assert "unknown --set field 'gama'" in capsys.readouterr().err
 
 
-def test_cli_rejects_demos_without_a_scripted_controller(tmp_path):
-    run = [sys.executable, os.path.join(ROOT, "experiments", "run.py"),
-           "--out", str(tmp_path / "x")]
-    out = subprocess.run(run + ["--task", "reach", "--demos", "10"],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 2 and "has no scripted controller" in out.stderr
-    out = subprocess.run(run + ["--task", "pickup", "--demos", "-1"],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 2 and "n_demos must be >= 0" in out.stderr
-    out = subprocess.run(run + ["--stop-at-success", "1.5"],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 2 and "--stop-at-success must be in [0, 1]" in out.stderr
+def test_cli_rejects_demos_without_a_scripted_controller(tmp_path, capsys):
+    run = ["--out", tmp_path / "x"]
+    assert call_main(train_cli.main, run + ["--task", "reach", "--demos", "10"]) == 2
+    assert "has no scripted controller" in capsys.readouterr().err
+    assert call_main(train_cli.main, run + ["--task", "pickup", "--demos", "-1"]) == 2
+    assert "n_demos must be >= 0" in capsys.readouterr().err
+    assert call_main(train_cli.main, run + ["--stop-at-success", "1.5"]) == 2
+    assert "--stop-at-success must be in [0, 1]" in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "x")
 
 
+@pytest.mark.e2e
 def test_cli_trains_reach_tiny(tmp_path):
     """The real reach env through the CLI: one tiny epoch writes every output."""
     run = str(tmp_path / "reach")

@@ -207,6 +207,7 @@ def test_grasp_states_recorded_once_per_config_and_errors(monkeypatch):
 
 # -- MJX (one reset + step at batch 2) ---------------------------------------------------------
 
+@pytest.mark.mjx
 def test_grasp_start_mjx_smoke():
     env = mjx_envs.make("pickup", physics="mjx", grasp_start_fraction=1.0, goal_rest_fraction=1.0,
                         n_grasp_states=N_STATES)
