@@ -128,8 +128,15 @@ def test_divergence_profile():
     # grip: the worse arm (the right one), the same in every episode
     for k in ("grip_mean_m", "grip_p90_m", "grip_max_m"):
         np.testing.assert_allclose(p[k], 0.002 * s, atol=1e-7)
+    np.testing.assert_array_equal(p["episodes"], 3)
     same = engines.divergence_profile(a, a)
-    assert all(np.all(same[k] == 0) for k in engines.PROFILE_COLUMNS[2:])
+    assert all(np.all(same[k] == 0) for k in engines.PROFILE_COLUMNS[3:])
+    # a physics fault (NaN) in episode 2 of engine B at step 2: left out from step 2 on
+    b["object"][2, 2, 0] = np.nan
+    p = engines.divergence_profile(a, b)
+    np.testing.assert_array_equal(p["episodes"], [3, 3, 2, 2, 2])
+    np.testing.assert_allclose(p["object_max_m"], [0, 0.03, 0.04, 0.06, 0.08], atol=1e-7)
+    np.testing.assert_allclose(p["grip_max_m"], 0.002 * s, atol=1e-7)
     with pytest.raises(ValueError, match="differ in shape"):
         engines.divergence_profile(a, _traj(n=2))
 
@@ -143,6 +150,7 @@ def test_write_divergence(tmp_path):
     assert [int(r["step"]) for r in rows] == list(range(5))
     assert float(rows[4]["object_max_m"]) == pytest.approx(0.12, abs=1e-6)
     assert float(rows[2]["grip_mean_m"]) == pytest.approx(0.004, abs=1e-6)
+    assert rows[3]["episodes"] == "3" and rows[3]["time_s"] == "0.12"
     assert os.path.getsize(paths["png"]) > 5000
 
 

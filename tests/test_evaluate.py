@@ -169,6 +169,8 @@ def test_compare_one_engine_with_itself(policy):
     for k in engines.ENGINE_FIELDS:
         if k != "eval_seconds":
             assert s["engines"]["c"][k] == one[k], k
+    assert s["engines"]["c"]["final_distance_mean_without_faults"] == pytest.approx(
+        one["final_distance_mean"])     # no physics fault here
     d = s["difference"]
     assert d["value"] == 0.0 and d["engines"] == ["c", "same"]
     assert d["paired"]["first_only"] == d["paired"]["second_only"] == 0

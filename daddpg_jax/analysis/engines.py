@@ -40,8 +40,8 @@ RUN_FIELDS = ("run_dir", "checkpoint", "best", "env_steps", "task", "algo", "epi
               "distance_threshold")
 """the fields a comparison shares between engines (taken from the first)"""
 
-PROFILE_COLUMNS = ("step", "time_s", "object_mean_m", "object_p90_m", "object_max_m",
-                   "grip_mean_m", "grip_p90_m", "grip_max_m")
+PROFILE_COLUMNS = ("step", "time_s", "episodes", "object_mean_m", "object_p90_m",
+                   "object_max_m", "grip_mean_m", "grip_p90_m", "grip_max_m")
 
 
 def parse_engines(spec: str, backend: str | None = None) -> tuple[str, ...]:
@@ -128,7 +128,8 @@ def compare(policies: dict, episodes: int = 100, seed: int | None = None, chunk=
     """Evaluates one checkpoint loaded once per engine (``{engine: Policy}``, two engines, the
     first is A) over the same episodes. Returns (summary, {engine: trajectory}): the summary
     holds the run's fields, ``engines: {name: {success_rate, successes, success_ci95,
-    final_distance_*, arm_contact_*, physics_fault_*, ...}}`` and ``difference: {engines: [A,
+    final_distance_* (and final_distance_mean_without_faults: over the episodes without a
+    physics fault), arm_contact_*, physics_fault_*, ...}}`` and ``difference: {engines: [A,
     B], value: success A - success B, ci95, paired: {both, first_only, second_only, neither}}``.
     ``report(name, summary)`` is called after each engine."""
     names = list(policies)
@@ -146,6 +147,12 @@ def compare(policies: dict, episodes: int = 100, seed: int | None = None, chunk=
     summary = {k: first[k] for k in RUN_FIELDS if k in first}
     summary["engines"] = {name: {k: runs[name][k] for k in ENGINE_FIELDS if k in runs[name]}
                           for name in names}
+    for name in names:   # a faulted episode's distance is NaN: the mean over the others too
+        ok = ~np.asarray(trajs[name]["physics_fault"], bool)
+        dist = np.asarray(trajs[name]["final_distance"])[ok]
+        summary["engines"][name]["final_distance_mean_without_faults"] = (
+            {arm: float(dist[:, i].mean()) if len(dist) else math.nan
+             for i, arm in enumerate(("left", "right"))})
     summary["difference"] = {
         "engines": names, "value": value,
         "ci95": list(newcombe_paired_interval(counts["both"], counts["first_only"],
@@ -163,12 +170,12 @@ def format_comparison(s: dict) -> str:
              "episodes on each engine"]
     for name, e in s["engines"].items():
         lo, hi = e["success_ci95"]
-        fd = e["final_distance_mean"]
+        fd = e.get("final_distance_mean_without_faults", e["final_distance_mean"])
         lines.append(
             f"{name:>4}: success {e['success_rate']:.3f} ({e['successes']}/{s['episodes']}; "
             f"95% Wilson {lo:.3f}-{hi:.3f}); final goal distance mean left {fd['left']:.4f} "
-            f"right {fd['right']:.4f} m; arm contact {e['arm_contact_rate']:.3f}; physics "
-            f"faults {e['physics_fault_rate']:.3f}")
+            f"right {fd['right']:.4f} m (episodes without a physics fault); arm contact "
+            f"{e['arm_contact_rate']:.3f}; physics faults {e['physics_fault_rate']:.3f}")
     d = s["difference"]
     p = d["paired"]
     lines.append(f"difference {a} - {b}: {d['value']:+.3f} (paired 95% Newcombe interval "
@@ -183,6 +190,8 @@ def divergence_profile(traj_a: dict, traj_b: dict, dt: float = 1.0) -> dict:
     maximum of the object-centre distance ||object_A - object_B|| and of the grip-point
     distance (the larger of the two arms') between two engines' trajectories of the same
     episodes (`evaluation.evaluate`'s ``object`` [N, T+1, 3] and ``grip`` [N, T+1, 2, 3]).
+    An episode whose state is not finite on either engine (a physics fault) is left out from
+    that step on; ``episodes`` counts the ones kept (NaN statistics when none is).
     Returns {column: array [T+1]} with the columns of ``PROFILE_COLUMNS`` (metres)."""
     for k in ("object", "grip"):
         if np.shape(traj_a[k]) != np.shape(traj_b[k]):
@@ -192,12 +201,14 @@ def divergence_profile(traj_a: dict, traj_b: dict, dt: float = 1.0) -> dict:
                          - np.asarray(traj_b["object"], np.float64), axis=-1)        # [N, T+1]
     grip = np.linalg.norm(np.asarray(traj_a["grip"], np.float64)
                           - np.asarray(traj_b["grip"], np.float64), axis=-1).max(-1)  # [N, T+1]
+    kept = np.logical_and.accumulate(np.isfinite(obj) & np.isfinite(grip), axis=1)  # [N, T+1]
     steps = np.arange(obj.shape[1])
-    out = {"step": steps, "time_s": steps * float(dt)}
+    out = {"step": steps, "time_s": steps * float(dt), "episodes": kept.sum(0)}
     for name, x in (("object", obj), ("grip", grip)):
-        out[f"{name}_mean_m"] = x.mean(0)
-        out[f"{name}_p90_m"] = np.percentile(x, 90, axis=0)
-        out[f"{name}_max_m"] = x.max(0)
+        for col, stat in (("mean", np.mean), ("p90", lambda v: np.percentile(v, 90)),
+                          ("max", np.max)):
+            out[f"{name}_{col}_m"] = np.array([stat(x[kept[:, t], t]) if kept[:, t].any()
+                                               else np.nan for t in steps])
     return out
 
 
@@ -212,8 +223,9 @@ def write_divergence(profile: dict, out_dir: str, title: str = "") -> dict:
         w = csv.writer(f)
         w.writerow(PROFILE_COLUMNS)
         for i in range(len(profile["step"])):
-            w.writerow([int(profile["step"][i])] + [f"{float(profile[c][i]):.6g}"
-                                                    for c in PROFILE_COLUMNS[1:]])
+            w.writerow([int(profile["step"][i]), f"{float(profile['time_s'][i]):.6g}",
+                        int(profile["episodes"][i])]
+                       + [f"{float(profile[c][i]):.6g}" for c in PROFILE_COLUMNS[3:]])
     _plot_divergence(profile, paths["png"], title)
     return paths
 
