@@ -243,6 +243,7 @@ def _plot_divergence(profile: dict, path: str, title: str) -> None:
         ax.plot(x, 1000 * profile[f"{name}_mean_m"], label="mean")
         ax.plot(x, 1000 * profile[f"{name}_p90_m"], "--", label="90th percentile")
         ax.plot(x, 1000 * profile[f"{name}_max_m"], ":", label="max")
+        ax.set_yscale("symlog", linthresh=1.0)   # linear below 1 mm: outliers stay readable
         ax.set_xlabel("control step")
         ax.set_ylabel(f"{label} distance, mm")
         ax.grid(alpha=0.3)
