@@ -3,8 +3,8 @@ the paired Newcombe interval, engine-list parsing (with the Warp refusal on a CP
 divergence profile and its files, the watchdog, and MJX vs C statistically (mjx tier).
 
 Cost: the unmarked tests are pure Python/NumPy plus in-process CLI calls that stop before any
-JAX program compiles (< 1 s each). The ``mjx`` tests compile MJX programs (~1.5-3 min each on a
-2-core CPU with a cold compilation cache; see each docstring).
+JAX program compiles (< 1 s each). The ``mjx`` test compiles an MJX program (minutes with a
+cold compilation cache, see its docstring).
 """
 
 from __future__ import annotations
@@ -243,7 +243,8 @@ def _scripted_success(task: str, physics: str, n: int, seed: int = 0) -> np.ndar
 @pytest.mark.mjx
 def test_scripted_pickup_succeeds_on_both_engines():
     """The scripted pickup controller, closed loop over the same N_PARITY episodes on each engine
-    (one MJX compile of a 50-step rollout at batch 8: ~2-3 min on a 2-core CPU)."""
+    (one MJX compile of a 50-step rollout at batch 8: ~3.5 min with a cold compilation cache
+    on a loaded 2-core CPU, ~30 s warm)."""
     c = _scripted_success("pickup", "c", N_PARITY)
     m = _scripted_success("pickup", "mjx", N_PARITY)
     counts = engines.paired_counts(c, m)

@@ -185,7 +185,8 @@ def test_compare_one_engine_with_itself(policy):
 @pytest.mark.mjx
 def test_cli_compares_c_and_mjx(run_dir, tmp_path, capsys):
     """``--physics c,mjx --divergence``: the JSON layout, the paired difference, and the profile
-    (MJX reach, 4 episodes in chunks of 2: one MJX compile, ~1.5 min on a 2-core CPU)."""
+    (MJX reach, 4 episodes in chunks of 2: one MJX compile; ~40 s with a cold compilation
+    cache on a 2-core CPU, plus the module's tiny training run)."""
     import csv
 
     from daddpg_jax.cli import evaluate as evaluate_cli
