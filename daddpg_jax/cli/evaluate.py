@@ -91,7 +91,7 @@ def build_parser():
     return p
 
 
-def _perturbation_grid(policy, args) -> int:
+def _perturbation_grid(policy, args, opts: dict) -> int:
     from daddpg_jax.analysis import perturbation
     from mjx_envs.schema import ConfigError
 
@@ -108,7 +108,8 @@ def _perturbation_grid(policy, args) -> int:
         point = ", ".join(f"{k}={row[k]}" for k in grid)
         print(f"[{len(done)}/{n}] {point}: success {row['success_rate']:.3f}", flush=True)
 
-    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report)
+    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report,
+                                      **opts)
     meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
                 best=policy.best,
                 task=policy.cfg.task, algo=policy.cfg.algo,
@@ -181,7 +182,7 @@ def _compare(policies: dict, args, opts: dict) -> int:
 
 def _evaluate_one(policy, args, opts: dict) -> int:
     if args.perturb:
-        return _perturbation_grid(policy, args)
+        return _perturbation_grid(policy, args, opts)
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed, **opts)
     if args.video:
         try:
