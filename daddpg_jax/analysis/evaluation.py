@@ -53,8 +53,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 Z95 = 1.959963984540054  # standard normal quantile 0.975
 
 MJX_CPU_CHUNK = 32
-"""episodes per chunk for MJX on a CPU (its contact scenes hang intermittently at larger
-batches; 32 is the largest batch the contact tests and probes use without a hang)"""
+"""episodes per chunk for MJX on a CPU: its contact scenes have hung at batches of 100 and 256
+and run at 64 and below (intermittently, so no limit is proven safe: the watchdog backs it)"""
 WATCHDOG_SECONDS = 120.0
 """default watchdog of a chunked MJX evaluation on a CPU: seconds one chunk may take (after
 compilation) before it is started again once"""
