@@ -138,7 +138,79 @@ def test_video(run_dir, tmp_path):
     assert np.asarray(frames[0]).std() > 5  # not a blank image
 
 
-def test_cli_refuses_mjx_on_cpu_at_large_batches(run_dir, capsys):
-    assert evaluate_cli.main([run_dir, "--physics", "mjx", "--episodes", "256"]) == 2
-    err = capsys.readouterr().err
-    assert "hangs on a CPU" in err and "--physics c" in err
+def test_chunked_evaluation_equals_unchunked(policy):
+    """Chunks of 5 (the last padded), with and without the watchdog's worker thread, give the
+    same episodes and results as one batch of 12 (C engine; ~3 s: one more program)."""
+    whole, tw = evaluation.evaluate(policy, episodes=N_TEST, chunk=None)
+    for watchdog in (None, 60.0):
+        part, tp = evaluation.evaluate(policy, episodes=N_TEST, chunk=5, watchdog=watchdog)
+        assert {k: v for k, v in part.items() if k != "eval_seconds"} == \
+            {k: v for k, v in whole.items() if k != "eval_seconds"}
+        assert set(tp) == set(tw)
+        for k in tw:
+            np.testing.assert_array_equal(tp[k], tw[k], err_msg=k)
+    assert tw["object"].shape == (N_TEST, policy.env.episode_length + 1, 3)
+    assert tw["grip"].shape == (N_TEST, policy.env.episode_length + 1, 2, 3)
+    assert evaluation.default_chunk("c", "cpu") is None
+    assert evaluation.default_chunk("mjx", "cpu") == evaluation.MJX_CPU_CHUNK
+    assert evaluation.default_chunk("mjx", "gpu") is None
+    with pytest.raises(ValueError, match="chunk must be"):
+        evaluation.evaluate(policy, episodes=2, chunk=0)
+
+
+def test_compare_one_engine_with_itself(policy):
+    """`engines.compare` on the C engine twice (~1 s, programs reused): difference 0, only
+    concordant pairs, a zero divergence profile."""
+    from daddpg_jax.analysis import engines
+
+    seen = []
+    s, trajs = engines.compare({"c": policy, "same": policy}, episodes=N_TEST,
+                               report=lambda name, r: seen.append(name))
+    assert seen == ["c", "same"] and list(s["engines"]) == ["c", "same"]
+    one, _ = evaluation.evaluate(policy, episodes=N_TEST)
+    for k in engines.ENGINE_FIELDS:
+        if k != "eval_seconds":
+            assert s["engines"]["c"][k] == one[k], k
+    assert s["engines"]["c"]["final_distance_mean_without_faults"] == pytest.approx(
+        one["final_distance_mean"])     # no physics fault here
+    d = s["difference"]
+    assert d["value"] == 0.0 and d["engines"] == ["c", "same"]
+    assert d["paired"]["first_only"] == d["paired"]["second_only"] == 0
+    assert d["paired"]["both"] == one["successes"]
+    assert d["ci95"][0] < 0 < d["ci95"][1]
+    assert s["episodes"] == N_TEST and s["task"] == "reach" and "physics" not in s
+    prof = engines.divergence_profile(trajs["c"], trajs["same"])
+    assert len(prof["step"]) == policy.env.episode_length + 1 and prof["grip_max_m"].max() == 0
+    assert "difference c - same: +0.000" in engines.format_comparison(s)
+
+
+@pytest.mark.mjx
+def test_cli_compares_c_and_mjx(run_dir, tmp_path, capsys):
+    """``--physics c,mjx --divergence``: the JSON layout, the paired difference, and the profile
+    (MJX reach, 4 episodes in chunks of 2: one MJX compile; ~40 s with a cold compilation
+    cache on a 2-core CPU, plus the module's tiny training run)."""
+    import csv
+
+
+    out, div = str(tmp_path / "cmp.json"), str(tmp_path / "div")
+    assert evaluate_cli.main([run_dir, "--physics", "c,mjx", "--episodes", "4", "--chunk", "2",
+                              "--json", out, "--divergence", div]) == 0
+    text = capsys.readouterr().out
+    assert "difference c - mjx" in text and "divergence.csv" in text
+    s = json.load(open(out))
+    assert set(s["engines"]) == {"c", "mjx"} and s["episodes"] == 4
+    c, m = s["engines"]["c"], s["engines"]["mjx"]
+    assert c["physics"] == "c" and m["physics"] == "mjx"
+    for e in (c, m):
+        assert e["successes"] == round(4 * e["success_rate"])
+        assert 0.0 <= e["physics_fault_rate"] <= 1.0 and set(e["final_distance_mean"]) == {
+            "left", "right"}
+    d = s["difference"]
+    assert d["value"] == pytest.approx(c["success_rate"] - m["success_rate"])
+    assert d["ci95"][0] <= d["value"] <= d["ci95"][1] and sum(d["paired"].values()) == 4
+    with open(os.path.join(div, "divergence.csv"), newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 50 + 1
+    assert float(rows[0]["grip_max_m"]) < 1e-4        # the same start on both engines
+    assert all(float(r["grip_mean_m"]) <= float(r["grip_max_m"]) + 1e-12 for r in rows)
+    assert os.path.getsize(os.path.join(div, "divergence.png")) > 5000

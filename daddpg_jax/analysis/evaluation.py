@@ -22,6 +22,15 @@ Per episode: success = every arm within the threshold at the last step (as in tr
 arm contact = the arms' link capsules came within ``arm_clearance`` at any step, final goal
 distance per arm at the last step, physics fault = the engine froze or diverged at some step
 (``metrics["physics_ok"]`` 0; the trainer logs the same rate as ``test_physics_fault_rate``).
+
+Chunks and the watchdog: the N episodes may run in chunks of ``chunk`` episodes (one compiled
+program of that batch; the last chunk is padded with repeats of its last key and the extras
+dropped). Every episode keeps its own reset key (the slice of the N keys above), so the results
+do not depend on the chunk size. MJX on a CPU runs in chunks of ``MJX_CPU_CHUNK`` by default:
+its contact scenes hang intermittently at larger batches (every thread asleep in
+``device_get``). With a watchdog, each chunk's execution (after compilation) runs in a worker
+thread; a chunk that has not finished after ``watchdog`` seconds is started again once, and a
+second miss raises `EngineHang` (``daddpg-evaluate`` then stops with one line, exit code 3).
 """
 
 from __future__ import annotations
@@ -29,6 +38,8 @@ from __future__ import annotations
 import csv
 import math
 import os
+import sys
+import threading
 import time
 import warnings
 from dataclasses import dataclass
@@ -40,6 +51,13 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 Z95 = 1.959963984540054  # standard normal quantile 0.975
+
+MJX_CPU_CHUNK = 32
+"""episodes per chunk for MJX on a CPU: its contact scenes have hung at batches of 100 and 256
+and run at 64 and below (intermittently, so no limit is proven safe: the watchdog backs it)"""
+WATCHDOG_SECONDS = 120.0
+"""default watchdog of a chunked MJX evaluation on a CPU: seconds one chunk may take (after
+compilation) before it is started again once"""
 
 
 def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -115,37 +133,123 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     return Policy(run_dir, int(step), cfg, payload, env, fns, state, best=bool(best))
 
 
+class EngineHang(RuntimeError):
+    """A chunk of episodes made no progress within the watchdog's time, twice."""
+
+
+def default_chunk(physics: str, backend: str | None = None) -> int | None:
+    """Episodes per chunk when none is given: ``MJX_CPU_CHUNK`` for MJX on a CPU, else None
+    (all episodes in one batch)."""
+    import jax
+
+    backend = backend or jax.default_backend()
+    return MJX_CPU_CHUNK if physics == "mjx" and backend == "cpu" else None
+
+
+def run_watched(fn, timeout: float | None, what: str = "chunk", retries: int = 1):
+    """``fn()``, with ``timeout``: run in a daemon thread; if it has not returned after
+    ``timeout`` seconds it is started again (``retries`` times, one line on stderr each), then
+    `EngineHang` is raised. A thread that hangs inside the engine cannot be stopped: it is left
+    behind (daemon), and a caller that gives up should end the process (``os._exit``)."""
+    if timeout is None:
+        return fn()
+    for attempt in range(retries + 1):
+        box: dict = {}
+
+        def work(box=box):
+            try:
+                box["value"] = fn()
+            except BaseException as e:  # noqa: BLE001 (re-raised in the caller's thread)
+                box["error"] = e
+
+        t = threading.Thread(target=work, name=f"watched {what}", daemon=True)
+        t.start()
+        t.join(timeout)
+        if "error" in box:
+            raise box["error"]
+        if "value" in box:
+            return box["value"]
+        if attempt < retries:
+            print(f"warning: {what} made no progress in {timeout:g} s; starting it again",
+                  file=sys.stderr, flush=True)
+    raise EngineHang(f"{what} made no progress in {timeout:g} s, twice (the engine hangs)")
+
+
 _ROLLOUTS: dict = {}
 
 
-def _rollout_fn(policy: Policy, n: int):
+def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
+    """The compiled rollout of ``n`` episodes: (state, reset keys [n, *key_shape]) -> (per-step
+    records [T, n, ...], first states, desired goals [n, 2, 3])."""
     import jax
 
     from daddpg_jax.algo import acting
+    from mjx_envs import observation as obs_lib
 
-    key_ = (id(policy.env), id(policy.fns), n)
+    key_ = (id(policy.env), id(policy.fns), n, tuple(key_shape), np.dtype(key_dtype).str)
     if key_ in _ROLLOUTS:
         return _ROLLOUTS[key_]
     env, act = policy.env, policy.fns.act
 
+    def positions(data):   # true object centre [N, 3] and grip points [N, 2, 3]
+        sens = env.backend.sensordata(data)
+        obj = obs_lib.read_object_sensors(jax.numpy, env.sensors, sens, sens.shape[:-1])
+        return obj["pos"], obs_lib.read_arm_sensors(jax.numpy, env.sensors, sens)["grip_pos"]
+
     def record(s, a, s2):
         ok = s2.metrics.get("physics_ok", jax.numpy.ones_like(s2.metrics["success"]))
+        obj, grip = positions(s2.data)
         return dict(success=s2.metrics["success"], arm_contact=s2.metrics["arm_contact"],
                     ag=s2.obs["achieved_goal"], qpos=env.backend.qpos(s2.data),
-                    mocap=env.backend.mocap_pos(s2.data)[:, :2], physics_ok=ok)
+                    mocap=env.backend.mocap_pos(s2.data)[:, :2], physics_ok=ok,
+                    object=obj, grip=grip)
 
-    def run(state, key):
+    def run(state, keys):
         def actors(s, _):
             return act(state, s.obs["observation"], s.obs["desired_goal"])
 
-        # the episodes of the trainer's evaluation: the same reset keys
-        s0, tr = acting.rollout(env, actors, acting.episode_keys(key, n), record=record)
-        first = dict(qpos=env.backend.qpos(s0.data), mocap=env.backend.mocap_pos(s0.data)[:, :2])
+        s0, tr = acting.rollout(env, actors, keys, record=record)
+        obj, grip = positions(s0.data)
+        first = dict(qpos=env.backend.qpos(s0.data), mocap=env.backend.mocap_pos(s0.data)[:, :2],
+                     object=obj, grip=grip)
         return tr, first, s0.obs["desired_goal"]
 
-    fn = jax.jit(run)
+    keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
+    fn = jax.jit(run).lower(policy.state, keys).compile()   # compiled before any watchdog runs
     _ROLLOUTS[key_] = fn
     return fn
+
+
+def run_episodes(policy: Policy, keys, chunk: int | None = None,
+                 watchdog: float | None = None):
+    """Rolls out one episode per reset key (``keys`` [N, 2]) in chunks of ``chunk`` (None: all
+    at once). Returns NumPy (records [T, N, ...], first states [N, ...], goals [N, 2, 3])."""
+    import jax
+
+    keys = np.asarray(keys)
+    n = len(keys)
+    size = n if chunk is None else max(1, min(int(chunk), n))
+    fn = _rollout_fn(policy, size, keys.shape[1:], keys.dtype)
+    parts = []
+    for i, lo in enumerate(range(0, n, size)):
+        part = keys[lo:lo + size]
+        pad = size - len(part)
+        if pad:   # one program for every chunk: repeat the last key, drop its results
+            part = np.concatenate([part, np.repeat(part[-1:], pad, 0)])
+        what = f"chunk {i + 1}/{-(-n // size)} ({size} episodes, physics {policy.env.physics})"
+        out = run_watched(lambda part=part: jax.device_get(fn(policy.state, part)), watchdog,
+                          what)
+        parts.append(_trim(out, size - pad))
+    tr = {k: np.concatenate([p[0][k] for p in parts], 1) for k in parts[0][0]}
+    first = {k: np.concatenate([p[1][k] for p in parts], 0) for k in parts[0][1]}
+    goal = np.concatenate([p[2] for p in parts], 0)
+    return tr, first, goal
+
+
+def _trim(out, m: int):
+    tr, first, goal = out
+    return ({k: np.asarray(v)[:, :m] for k, v in tr.items()},
+            {k: np.asarray(v)[:m] for k, v in first.items()}, np.asarray(goal)[:m])
 
 
 def _metrics_row(run_dir: str, epoch: int) -> dict | None:
@@ -159,18 +263,35 @@ def _metrics_row(run_dir: str, epoch: int) -> dict | None:
     return None
 
 
-def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
-    """Runs ``episodes`` deterministic episodes at once. Returns (summary dict, trajectory)
-    where the trajectory holds NumPy arrays for rendering: ``qpos`` [N, T+1, nq],
-    ``mocap`` [N, T+1, 2, 3], ``goal`` [N, 2, 3], ``success`` [N], ``arm_contact`` [N]."""
+def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
+             chunk: int | str | None = "auto", watchdog: float | str | None = "auto"):
+    """Runs ``episodes`` deterministic episodes, in chunks of ``chunk`` episodes ("auto":
+    `default_chunk`; None: all at once) under a watchdog of ``watchdog`` seconds per chunk
+    ("auto": ``WATCHDOG_SECONDS`` for MJX on a CPU, else none; None: none). Returns
+    (summary dict, trajectory) where the trajectory holds NumPy arrays for rendering and
+    comparison: ``qpos`` [N, T+1, nq], ``mocap`` [N, T+1, 2, 3], ``object`` [N, T+1, 3] (object
+    centre; zeros without an object), ``grip`` [N, T+1, 2, 3], ``goal`` [N, 2, 3],
+    ``success`` [N], ``arm_contact`` [N], ``physics_fault`` [N], ``final_distance`` [N, 2]."""
     import jax
+
+    from daddpg_jax.algo import acting
 
     if episodes < 1:
         raise ValueError("episodes must be >= 1")
     seed = int(policy.cfg.eval_seed if seed is None else seed)
-    fn = _rollout_fn(policy, int(episodes))
+    physics = getattr(policy.env, "physics", policy.cfg.physics)
+    if chunk == "auto":
+        chunk = default_chunk(physics)
+    if chunk is not None and (int(chunk) != chunk or chunk < 1):
+        raise ValueError(f"chunk must be an integer >= 1, 'auto' or None, got {chunk!r}")
+    if watchdog == "auto":
+        watchdog = WATCHDOG_SECONDS if default_chunk(physics) is not None else None
+    if watchdog is not None and not watchdog > 0:
+        raise ValueError(f"watchdog must be > 0 seconds, 'auto' or None, got {watchdog!r}")
     t0 = time.perf_counter()
-    tr, first, goal = jax.device_get(fn(policy.state, jax.random.PRNGKey(seed)))
+    # the trainer's evaluation episodes: the same reset keys, whatever the chunk size
+    keys = np.asarray(acting.episode_keys(jax.random.PRNGKey(seed), int(episodes)))
+    tr, first, goal = run_episodes(policy, keys, chunk, watchdog)
     elapsed = time.perf_counter() - t0
     success = np.asarray(tr["success"][-1]) > 0.5                       # [N]
     contact = np.max(np.asarray(tr["arm_contact"]), axis=0) > 0.5        # [N]
@@ -183,7 +304,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
         "run_dir": os.path.abspath(policy.run_dir),
         "checkpoint": policy.step, "best": policy.best,
         "env_steps": int(row["env_steps"]) if row else None,
-        "task": cfg.task, "algo": cfg.algo, "physics": getattr(policy.env, "physics", cfg.physics),
+        "task": cfg.task, "algo": cfg.algo, "physics": physics,
         "episodes": n, "seed": seed,
         "success_rate": k / n, "successes": k, "success_ci95": list(wilson_interval(k, n)),
         "arm_contact_rate": c / n, "arm_contact_episodes": c,
@@ -196,10 +317,14 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
         "physics_fault_rate": int(fault.sum()) / n, "physics_fault_episodes": int(fault.sum()),
         "eval_seconds": round(elapsed, 3),
     }
-    qpos = np.concatenate([np.asarray(first["qpos"])[None], np.asarray(tr["qpos"])], 0)
-    mocap = np.concatenate([np.asarray(first["mocap"])[None], np.asarray(tr["mocap"])], 0)
-    traj = dict(qpos=np.swapaxes(qpos, 0, 1), mocap=np.swapaxes(mocap, 0, 1),
-                goal=np.asarray(goal), success=success, arm_contact=contact, final_distance=dist)
+
+    def with_first(k):   # [N, T+1, ...]
+        return np.swapaxes(np.concatenate([first[k][None], tr[k]], 0), 0, 1)
+
+    traj = dict(qpos=with_first("qpos"), mocap=with_first("mocap"),
+                object=with_first("object"), grip=with_first("grip"), goal=np.asarray(goal),
+                success=success, arm_contact=contact, physics_fault=fault,
+                final_distance=dist)
     return summary, traj
 
 

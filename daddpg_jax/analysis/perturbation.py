@@ -55,10 +55,11 @@ def grid_points(grid: dict[str, list]) -> list[dict]:
 
 
 def evaluate_grid(policy, grid: dict[str, list], episodes: int = 100, seed: int | None = None,
-                  report=None) -> list[dict]:
+                  report=None, **eval_opts) -> list[dict]:
     """One row per grid point: the perturbation's values and the evaluation's results
     (`daddpg_jax.analysis.evaluation.evaluate` on the standard task with the perturbation at
-    exact values). report: optional callable(row) after each point (progress)."""
+    exact values; ``eval_opts``: its ``chunk`` / ``watchdog``). report: optional callable(row)
+    after each point (progress)."""
     from daddpg_jax.analysis import evaluation
     from daddpg_jax.running.runner import make_env
 
@@ -67,7 +68,8 @@ def evaluate_grid(policy, grid: dict[str, list], episodes: int = 100, seed: int 
     rows = []
     for point in grid_points(grid):
         env = make_env(cfg, {**base, **point, "perturb_exact": True})
-        summary, _ = evaluation.evaluate(dataclasses.replace(policy, env=env), episodes, seed)
+        summary, _ = evaluation.evaluate(dataclasses.replace(policy, env=env), episodes, seed,
+                                         **eval_opts)
         lo, hi = summary["success_ci95"]
         row = dict(point, success_rate=summary["success_rate"], success_ci95_low=lo,
                    success_ci95_high=hi, arm_contact_rate=summary["arm_contact_rate"],

@@ -8,8 +8,20 @@ Examples
   python experiments/evaluate.py runs/push_s0 --perturb obs_noise=0,0.005,0.01,0.02 \
       --perturb latency=0,1,2 --perturb obs_dropout=0,0.1 --out runs/push_s0/perturbation
 
+  python experiments/evaluate.py runs/pickup_s0 --best --seed 2024 --episodes 64 \
+      --physics c,mjx --divergence runs/pickup_s0/engines
+
 The default seed is the run's eval_seed, so with the default 100 episodes the success rate
 equals the test_success_rate that metrics.csv logged for that checkpoint's epoch.
+--physics c,mjx evaluates the checkpoint on both engines over the same episodes: success per
+engine (95% Wilson interval), final goal distances, arm-contact and physics-fault rates, and the
+success difference with its paired 95% Newcombe interval; --divergence OUT writes
+OUT/divergence.csv and .png: per control step, how far the object centres and grip points of
+the two engines' closed-loop trajectories are apart.
+MJX on a CPU runs the episodes in chunks (--chunk, default 32) under a watchdog (--watchdog,
+default 120 s per chunk after compilation): a chunk that makes no progress is started again
+once, then the evaluation stops with one line (exit code 3). Results do not depend on the chunk
+size (every episode keeps its reset key).
 --perturb evaluates over a grid of observation/action perturbations and physics randomization
 fields at exact values (the product of the values given; mjx_envs/perturb.py,
 mjx_envs/randomize.py): OUT/perturbation.csv and .json (one row per
@@ -25,9 +37,10 @@ import json
 import os
 import sys
 
-from mjx_envs.settings import PHYSICS
+os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+from daddpg_jax.analysis import engines, evaluation  # noqa: E402
+from mjx_envs.settings import PHYSICS  # noqa: E402
 
 
 def build_parser():
@@ -44,8 +57,19 @@ def build_parser():
     p.add_argument("--episodes", type=int, default=100, help="evaluation episodes (default 100)")
     p.add_argument("--seed", type=int, default=None,
                    help="seed of the evaluation episodes (default: the run's eval_seed)")
-    p.add_argument("--physics", choices=PHYSICS, default=None,
-                   help="physics engine (default: the run's)")
+    p.add_argument("--physics", default=None, metavar="ENGINE[,ENGINE]",
+                   help=f"physics engine ({', '.join(PHYSICS)}; default: the run's), or two "
+                        "engines to compare over the same episodes, e.g. c,mjx")
+    p.add_argument("--divergence", metavar="OUT_DIR", default=None,
+                   help="with two engines: write OUT_DIR/divergence.csv and .png (object and "
+                        "grip-point distances between the engines per control step)")
+    p.add_argument("--chunk", type=int, default=None, metavar="N",
+                   help=f"episodes per batch (default: {evaluation.MJX_CPU_CHUNK} for MJX on a "
+                        "CPU, else all at once); results do not depend on it")
+    p.add_argument("--watchdog", type=float, default=None, metavar="SECONDS",
+                   help=f"seconds a chunk may run (after compiling) before it is started again "
+                        f"once, then the run stops (default: {evaluation.WATCHDOG_SECONDS:g} "
+                        "for MJX on a CPU, else none; 0: none)")
     p.add_argument("--video", metavar="OUT.mp4", default=None,
                    help="render the first --video-episodes episodes one after another")
     p.add_argument("--video-episodes", type=int, default=3,
@@ -67,7 +91,7 @@ def build_parser():
     return p
 
 
-def _perturbation_grid(policy, args) -> int:
+def _perturbation_grid(policy, args, opts: dict) -> int:
     from daddpg_jax.analysis import perturbation
     from mjx_envs.schema import ConfigError
 
@@ -84,7 +108,8 @@ def _perturbation_grid(policy, args) -> int:
         point = ", ".join(f"{k}={row[k]}" for k in grid)
         print(f"[{len(done)}/{n}] {point}: success {row['success_rate']:.3f}", flush=True)
 
-    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report)
+    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report,
+                                      **opts)
     meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
                 best=policy.best,
                 task=policy.cfg.task, algo=policy.cfg.algo,
@@ -95,37 +120,70 @@ def _perturbation_grid(policy, args) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.episodes < 1:
-        print("error: --episodes must be >= 1", file=sys.stderr)
-        return 2
-    if args.perturb and not args.out:
-        print("error: --perturb needs --out DIR", file=sys.stderr)
-        return 2
-    if args.perturb and args.video:
-        print("error: --perturb and --video exclude each other", file=sys.stderr)
-        return 2
-
-    from daddpg_jax.analysis import evaluation
-
-    try:
-        policy = evaluation.load_policy(args.run_dir, args.step, physics=args.physics,
-                                        best=args.best)
-    except evaluation.NoCheckpointError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    from daddpg_jax.running.runner import check_physics_backend
+def _check_args(args) -> tuple | str:
+    """The engines to use, or a one-line error."""
     from mjx_envs.schema import ConfigError
 
-    try:   # MJX on a CPU hangs at large batches: refuse before compiling
-        check_physics_backend(policy.env.physics, 1, args.episodes)
+    if args.episodes < 1:
+        return "--episodes must be >= 1"
+    if args.chunk is not None and args.chunk < 1:
+        return "--chunk must be >= 1"
+    if args.watchdog is not None and args.watchdog < 0:
+        return "--watchdog must be >= 0 (0: none)"
+    if args.perturb and not args.out:
+        return "--perturb needs --out DIR"
+    if args.perturb and args.video:
+        return "--perturb and --video exclude each other"
+    try:
+        names = (None,) if args.physics is None else engines.parse_engines(args.physics)
     except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        return str(e)
+    if len(names) > 1 and (args.perturb or args.video):
+        return "--perturb and --video take one engine, not a comparison"
+    if args.divergence and len(names) < 2:
+        return "--divergence needs two engines, e.g. --physics c,mjx"
+    return names
+
+
+def _print_result(summary: dict, args, text: str) -> None:
+    if args.json == "-":
+        print(json.dumps(summary, indent=2))
+        return
+    print(text)
+    if args.video:
+        print(f"video: {summary['video']} ({min(args.video_episodes, args.episodes)} episodes)")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(summary, f, indent=2)
+        print(f"json: {os.path.abspath(args.json)}")
+
+
+def _compare(policies: dict, args, opts: dict) -> int:
+    def report(name, s):
+        if args.json != "-":
+            print(f"{name}: success {s['success_rate']:.3f} ({s['eval_seconds']:.0f} s)",
+                  flush=True)
+
+    summary, trajs = engines.compare(policies, args.episodes, args.seed, report=report, **opts)
+    if args.divergence:
+        a, b = summary["difference"]["engines"]
+        first = policies[a]
+        profile = engines.divergence_profile(trajs[a], trajs[b], dt=first.env.dt)
+        title = (f"{first.cfg.task} / {os.path.basename(os.path.abspath(first.run_dir))} / "
+                 f"checkpoint {first.step}: {a} vs {b}, {args.episodes} episodes")
+        summary["divergence"] = {k: os.path.abspath(v) for k, v in
+                                 engines.write_divergence(profile, args.divergence, title).items()}
+    text = engines.format_comparison(summary)
+    if args.divergence:
+        text += f"\ndivergence: {summary['divergence']['csv']}, {summary['divergence']['png']}"
+    _print_result(summary, args, text)
+    return 0
+
+
+def _evaluate_one(policy, args, opts: dict) -> int:
     if args.perturb:
-        return _perturbation_grid(policy, args)
-    summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
+        return _perturbation_grid(policy, args, opts)
+    summary, traj = evaluation.evaluate(policy, args.episodes, args.seed, **opts)
     if args.video:
         try:
             written = evaluation.write_video(policy, traj, args.video, args.video_episodes,
@@ -137,17 +195,33 @@ def main(argv=None) -> int:
             print(f"note: no mp4 writer (pip install imageio-ffmpeg); wrote a GIF: {written}",
                   file=sys.stderr)
         summary["video"] = os.path.abspath(written)
-    if args.json == "-":
-        print(json.dumps(summary, indent=2))
-    else:
-        print(evaluation.format_summary(summary))
-        if args.video:
-            print(f"video: {summary['video']} ({min(args.video_episodes, args.episodes)} episodes)")
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump(summary, f, indent=2)
-            print(f"json: {os.path.abspath(args.json)}")
+    _print_result(summary, args, evaluation.format_summary(summary))
     return 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    names = _check_args(args)
+    if isinstance(names, str):
+        print(f"error: {names}", file=sys.stderr)
+        return 2
+    try:
+        policies = {name: evaluation.load_policy(args.run_dir, args.step, physics=name,
+                                                 best=args.best) for name in names}
+    except evaluation.NoCheckpointError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    opts = dict(chunk="auto" if args.chunk is None else args.chunk,
+                watchdog="auto" if args.watchdog is None else (args.watchdog or None))
+    try:
+        if len(policies) > 1:
+            return _compare(policies, args, opts)
+        return _evaluate_one(next(iter(policies.values())), args, opts)
+    except evaluation.EngineHang as e:
+        # the hung engine thread cannot be stopped, and interpreter shutdown could wait on it
+        print(f"error: {e}; try a smaller --chunk or --physics c", file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        os._exit(3)
 
 
 if __name__ == "__main__":
