@@ -100,7 +100,7 @@ class PolicyClient:
     def _left(deadline: float) -> float:
         left = deadline - time.monotonic()
         if left <= 0:
-            raise DeadlineExceeded("deadline passed")
+            raise DeadlineExceeded("timed out: the request's deadline passed")
         return left
 
     def _connect(self, deadline: float):
@@ -133,7 +133,7 @@ class PolicyClient:
             self.close()
             if isinstance(e, DeadlineExceeded):
                 raise
-            raise DeadlineExceeded("deadline passed") from None
+            raise DeadlineExceeded("timed out: the request's deadline passed") from None
         except BaseException:
             self.close()
             raise
