@@ -337,7 +337,7 @@ def test_robot_client_cli(tiny_served, tmp_path, fast_limits):
     res = json.loads(out_json.read_text())
     assert res["episodes"] == 2 and res["task"] == "reach" and res["stops"] == 0
     assert res["excluded_episodes"] == 0 and res["aborted"] is None and res["outages"] == 0
-    assert "outage" not in r.stderr
+    assert "policy service outage" not in r.stderr
     r = client("--episodes", "1")  # the task from GET /info
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["task"] == "reach"

@@ -218,7 +218,7 @@ def test_wide_box_in_info_does_not_widen_the_robot_box(policy, tmp_path, capsys)
 
 
 @pytest.mark.parametrize("lie,words", [
-    ({"info_env": {"dt": float("nan")}}, "control period"),
+    ({"info_env": {"dt": float("nan")}}, "NaN"),  # not even valid JSON: refused
     ({"info_env": {"dt": -1.0}}, "control period"),
     ({"info_env": {"dt": 0.02}}, "control period"),
     ({"info_env": {"dt": 0.04, "timestep": 0.02}}, "timestep"),

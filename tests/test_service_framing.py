@@ -181,3 +181,22 @@ def test_token_required(policy, tmp_path, capsys):
     (tmp_path / "bad").write_text("short")
     assert serve.main([GOOD, "--token-file", str(tmp_path / "bad")]) == 2
     assert "token file" in capsys.readouterr().err
+
+
+@pytest.mark.e2e
+def test_flood_benchmark_runs_bounded(tmp_path):
+    """The flood benchmark (service and flooders in their own processes), shortened: 2
+    flooders, two phases of 1 s; ~5 s. The figures in docs/RELIABILITY.md come from its full
+    run."""
+    from daddpg_jax.cli import bench_flood
+
+    out_json = tmp_path / "flood.json"
+    assert bench_flood.main([GOOD, "--flooders", "2", "--seconds", "1", "--json",
+                             str(out_json)]) == 0
+    out = json.loads(out_json.read_text())
+    assert out["malformed_bodies_refused"] > 10
+    for phase in ("alone", "flooded"):
+        assert 20 <= out[phase]["requests"] <= 30 and out[phase]["rtt_ms_p50"] < 40
+    assert bench_flood.malformed_body(100, "numbers")[:3] == b"[1,"
+    with pytest.raises(SystemExit):
+        bench_flood.main([GOOD, "--flooders", "1000"])

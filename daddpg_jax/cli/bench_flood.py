@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import os
 import re
 import socket
@@ -66,7 +65,8 @@ def _flood_worker(host, port, body: bytes, stop, counts, i):
             time.sleep(0.01)
 
 
-def _flood_process(host, port, n, body, seconds, out_q):
+def flood(host: str, port: int, n: int, body: bytes, seconds: float) -> int:
+    """``n`` connections sending ``body`` over keep-alive for ``seconds``; the answers read."""
     stop, counts = threading.Event(), [0] * n
     threads = [threading.Thread(target=_flood_worker, args=(host, port, body, stop, counts, i),
                                 daemon=True) for i in range(n)]
@@ -76,7 +76,15 @@ def _flood_process(host, port, n, body, seconds, out_q):
     stop.set()
     for t in threads:
         t.join(timeout=5)
-    out_q.put(sum(counts))
+    return sum(counts)
+
+
+def _start_flooders(url: str, n: int, kind: str, size: int, seconds: float):
+    """The flooders in their own process (``--flood-only``): they must not share the probe's
+    interpreter lock."""
+    return subprocess.Popen([sys.executable, "-m", "daddpg_jax.cli.bench_flood", "--flood-only",
+                             url, "--flooders", str(n), "--kind", kind, "--max-body", str(size),
+                             "--seconds", str(seconds)], stdout=subprocess.PIPE, text=True)
 
 
 def probe(url: str, seconds: float, period: float = 0.04, deadline: float = 0.04,
@@ -122,7 +130,8 @@ def start_service(policy: str, max_body: int):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="bench_flood.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("policy", help="exported .npz to serve")
+    p.add_argument("policy", nargs="?", help="exported .npz to serve")
+    p.add_argument("--flood-only", default=None, metavar="URL", help=argparse.SUPPRESS)
     p.add_argument("--flooders", type=int, default=16, help="flooding connections (default 16)")
     p.add_argument("--seconds", type=float, default=10.0, help="length of each phase, s")
     p.add_argument("--kind", choices=BODY_KINDS, default="nesting",
@@ -135,6 +144,13 @@ def main(argv=None) -> int:
         p.error(f"--flooders must be in 1..{MAX_FLOODERS}")
     if not 0.5 <= args.seconds <= MAX_SECONDS:
         p.error(f"--seconds must be in 0.5..{MAX_SECONDS:g}")
+    if args.flood_only:  # the flooders' process: print how many bodies were answered
+        host, port = args.flood_only.rsplit("//", 1)[1].rsplit(":", 1)
+        print(flood(host, int(port), args.flooders, malformed_body(args.max_body, args.kind),
+                    args.seconds), flush=True)
+        return 0
+    if args.policy is None:
+        p.error("give a policy file")
     if not os.path.exists(args.policy):
         print(f"error: policy file {args.policy!r} not found", file=sys.stderr)
         return 2
@@ -143,22 +159,20 @@ def main(argv=None) -> int:
     except RuntimeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    host, port = url.rsplit("//", 1)[1].rsplit(":", 1)
+    flooders = None
     try:
         alone = probe(url, args.seconds)
-        body = malformed_body(args.max_body, args.kind)
-        q = multiprocessing.get_context("spawn").Queue()
-        flood = multiprocessing.get_context("spawn").Process(
-            target=_flood_process, args=(host, int(port), args.flooders, body,
-                                         args.seconds + 1.0, q), daemon=True)
-        flood.start()
+        flooders = _start_flooders(url, args.flooders, args.kind, args.max_body,
+                                   args.seconds + 1.0)
         time.sleep(0.5)  # the flood under way
         flooded = probe(url, args.seconds)
-        refused = q.get(timeout=args.seconds + 30)
-        flood.join(timeout=10)
+        out_text, _ = flooders.communicate(timeout=args.seconds + 30)
+        refused = int(out_text.strip() or 0)
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        for pr in (flooders, proc):
+            if pr is not None and pr.poll() is None:
+                pr.terminate()
+                pr.wait(timeout=10)
     out = dict(machine=f"{os.cpu_count()}-core CPU", flooders=args.flooders, kind=args.kind,
                body_bytes=args.max_body, seconds=args.seconds, deadline_ms=40.0,
                period_ms=40.0, alone=alone, flooded=flooded,

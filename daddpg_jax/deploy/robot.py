@@ -337,6 +337,39 @@ def _log_step(log, t, age, seen, goal, answer, info, decision, ctrl, missed_why)
                     server_ms=info.get("server_ms")))
 
 
+def _judge(safety, answer, info, rtt, deadline, age, max_age):
+    """(validated action or None, why the period is a missed deadline or None, the hold's
+    reason: stop / late / stale)."""
+    action = None if answer is None else safety.validate_action(answer)
+    if action is None:
+        return None, info.get("error") or "malformed answer", "stop"
+    if rtt > deadline:
+        return action, f"late answer ({rtt * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)", "late"
+    if max_age is not None and age > max_age:
+        return action, (f"stale observation ({age * 1e3:.1f} ms old > {max_age * 1e3:.1f} "
+                        f"ms)"), "stale"
+    return action, None, None
+
+
+def _report(monitor: OutageMonitor | None, why: str | None, sent_at: float, where: str):
+    """Tells the monitor (if any) how the period went: answered, or a missed deadline."""
+    if monitor is None:
+        return
+    if why is None:
+        monitor.answered()
+    else:
+        monitor.missed_deadline(why, sent_at=sent_at, where=where)
+
+
+def _limit_fingers(safety, ctrl, decision):
+    """The finger command within the limits' range (counted as ``finger`` when clipped)."""
+    limited = safety.finger_opening(ctrl)
+    if np.any(limited != ctrl):
+        decision.reasons.append("finger")
+        safety.counts["finger"] = safety.counts.get("finger", 0) + 1
+    return limited
+
+
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
@@ -346,29 +379,23 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a real-robot driver with the same
-    ``reset``/``command_targets``/``finger_ctrl``/``step_targets``/``target``);
-    client: ``daddpg_jax.deploy.server.PolicyClient``; safety:
-    ``daddpg_jax.deploy.safety.SafetyFilter``.
-    An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
-    limits' deadline) is a missed deadline: both arms hold (``stops`` counts them). So is an
-    answer to an observation older than ``max_observation_age`` s when the answer arrives
-    (``stale`` counts them; the observation's capture time is the result's ``captured_at``
-    when the env provides one, else when the loop read it). With a
-    ``monitor`` (``OutageMonitor``), each period is reported to it after the hold has been
-    applied; its ``ServiceOutage`` ends the episode, with this episode's partial summary in
-    ``.episode``. ``episode``: the episode's index, for the reports.
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a driver with its ``reset`` /
+    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``); client:
+    ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
+    ``deadline_s``, default the limits' deadline), or one to an observation older than
+    ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
+    sets one, else when the loop read it) is a missed deadline: both arms hold (``stops``).
+    monitor: an ``OutageMonitor`` told of each period after the hold; its ``ServiceOutage``
+    ends the episode, with the partial summary in ``.episode``. episode: the index, for reports.
     pacer: a ``Pacer`` runs one step per control period (None: as fast as the env steps).
     log: a dict that receives the episode's log (goal, initial state, and per step the
     observation, its age, the answer, the safety decision, the targets sent and the times);
     ``replay_episode`` replays it in the simulator.
-    perturbation: a ``mjx_envs.perturb.Perturbation`` (sim-to-sim: the trainer's observation
-    noise, dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to
-    what the policy sees and to the actions it sends; the safety layer sees the true state.
-    action_history: the policy's ``action_history`` k (its last k actions end each arm's
-    observation, `mjx_envs.observation.with_action_history`); None = ``env.config``'s (0
-    without one). The history holds the actions the service answered, before any latency; a
-    held period (missed deadline) counts as the zero action.
+    perturbation: a ``mjx_envs.perturb.Perturbation`` (the trainer's observation noise,
+    dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to what the
+    policy sees and sends; the safety layer sees the true state. action_history: the policy's k
+    (``mjx_envs.observation.with_action_history``; None = ``env.config``'s, 0 without one): the
+    actions the service answered, before any latency; a held period counts as zero.
     Returns the summary.
     """
     from mjx_envs import observation as obs_lib
@@ -380,12 +407,10 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
-    steps = None
-    if log is not None:
-        log.update(episode=episode, goal=np.asarray(res.desired_goal, float).tolist(),
-                   qpos=np.asarray(getattr(env, "_qpos", []), float).tolist(), steps=[])
-        steps = log["steps"]
-    seen, pcarry = res.observation, None
+    log = {} if log is None else log
+    log.update(episode=episode, goal=np.asarray(res.desired_goal, float).tolist(),
+               qpos=np.asarray(getattr(env, "_qpos", []), float).tolist(), steps=[])
+    seen, pcarry, sampler = res.observation, None, None
     if perturbation is not None and perturbation.active:
         from mjx_envs import perturb, rules
 
@@ -407,20 +432,10 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         t_answer = clock()
         rtt, age = t_answer - t0, t_answer - captured
         rtts.append(rtt * 1e3)
-        action = None if answer is None else safety.validate_action(answer)
-        too_old = max_observation_age is not None and age > max_observation_age
-        missed = action is None or rtt > deadline or too_old
-        why = None
-        if missed:
-            if action is None:
-                why, reason = info.get("error") or "malformed answer", "stop"
-            elif rtt > deadline:
-                why, reason = (f"late answer ({rtt * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)",
-                               "late")
-            else:
-                why, reason = (f"stale observation ({age * 1e3:.1f} ms old > "
-                               f"{max_observation_age * 1e3:.1f} ms)", "stale")
-                stale += 1
+        action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
+                                     max_observation_age)
+        if why is not None:
+            stale += reason == "stale"
             errors.append(why)
             decision = safety.hold(env.target, reason=reason)
             stops += 1
@@ -432,41 +447,29 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             proposed, ctrl = env.command_targets(action)
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
-            limited = safety.finger_opening(ctrl)
-            if np.any(limited != ctrl):
-                decision.reasons.append("finger")
-                safety.counts["finger"] = safety.counts.get("finger", 0) + 1
-            ctrl = limited
+            ctrl = _limit_fingers(safety, ctrl, decision)
         if k_hist:
             hist = obs_lib.push_action(np, hist, chosen)
-        if steps is not None:
-            _log_step(steps, tick, age, seen, res.desired_goal, answer, info, decision, ctrl,
-                      why)
+        _log_step(log["steps"], tick, age, seen, res.desired_goal, answer, info, decision, ctrl,
+                  why)
         res = env.step_targets(decision.target, ctrl)
         step_ms.append((clock() - tick) * 1e3)
+        log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
         seen = res.observation
         if pcarry is not None and perturbation.observes:
             seen, pcarry = perturb.observe(np, sampler, perturb_rng, perturbation, pcarry,
                                            res.observation)
         clear_min = min(clear_min, res.arm_clearance)
-        if monitor is None:
-            continue
-        if not missed:
-            monitor.answered()
-            continue
         try:
-            monitor.missed_deadline(why, sent_at=t0,
-                                    where=f"episode {episode + 1}, step {step + 1}")
+            _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")
         except ServiceOutage as e:
-            e.episode = _episode_summary(res, stops, errors, clear_min, rtts, complete=False,
-                                         stale=stale, step_ms=step_ms)
-            if log is not None:
-                log["summary"] = e.episode
+            e.episode = log["summary"] = _episode_summary(
+                res, stops, errors, clear_min, rtts, complete=False, stale=stale,
+                step_ms=step_ms)
             raise
-    out = _episode_summary(res, stops, errors, clear_min, rtts, stale=stale, step_ms=step_ms)
-    if log is not None:
-        log["summary"] = out
-    return out
+    log["summary"] = _episode_summary(res, stops, errors, clear_min, rtts, stale=stale,
+                                      step_ms=step_ms)
+    return log["summary"]
 
 
 def replay_episode(env, log: dict):
@@ -496,7 +499,8 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
     counted = [e for e in eps if e["stops"] == 0]
 
     def stat(fn, key, among):
-        return float(fn([e[key] for e in among])) if among else None
+        vals = [e[key] for e in among if key in e]
+        return float(fn(vals)) if vals else None
 
     n_ok = sum(e["success"] for e in counted)
     return dict(episodes=len(counted), episodes_run=len(eps),

@@ -48,7 +48,6 @@ from __future__ import annotations
 import hmac
 import json
 import math
-import re
 import socket
 import socketserver
 import sys
@@ -123,19 +122,28 @@ class _ClientGone(Exception):
     """The client closed the connection, or it stayed idle past ``idle_timeout``."""
 
 
+_KEEP = b'"[]{}'
+_DROP = bytes(c for c in range(256) if c not in _KEEP)
+_STEP = np.zeros(256, np.int8)
+_STEP[list(b"[{")] = 1
+_STEP[list(b"]}")] = -1
+
+
 def json_depth_exceeds(body: bytes, max_depth: int) -> bool:
     """True when arrays/objects nest deeper than ``max_depth`` (brackets inside strings do not
-    count). Vectorized: string literals are cut out with one regular expression (linear), the
-    depth is a cumulative sum in NumPy; a 64 KiB body takes well under a millisecond."""
+    count). Escapes go first (escaped backslashes, then escaped quotes, left to right as JSON
+    reads them), then everything but quotes and brackets (``bytes.translate``); the parts
+    between quotes are strings and are dropped, and the depth is a cumulative sum in NumPy.
+    Well under a millisecond for a 64 KiB body, whatever it holds."""
     if body.count(b"[") + body.count(b"{") <= max_depth:
         return False
-    bare = _STRING.sub(b'""', body)
-    a = np.frombuffer(bare, np.uint8)
-    step = ((a == 0x5B) | (a == 0x7B)).astype(np.int32) - ((a == 0x5D) | (a == 0x7D))
-    return bool(step.size) and int(np.cumsum(step).max()) > max_depth
-
-
-_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"?', re.DOTALL)
+    s = body.replace(b"\\\\", b"").replace(b'\\"', b"").translate(None, _DROP)
+    if b'"' in s:
+        s = b"".join(s.split(b'"')[::2])
+    if len(s) <= max_depth:
+        return False
+    depth = np.cumsum(_STEP[np.frombuffer(s, np.uint8)], dtype=np.int32)
+    return bool(depth.max() > max_depth)
 
 
 def decode_body(body: bytes, max_depth: int) -> Any:
@@ -234,14 +242,17 @@ def _linger(sock: socket.socket, until: float, budget: int) -> int:
     return got
 
 
+def _phrase(status: int) -> str:
+    try:
+        return HTTPStatus(status).phrase
+    except ValueError:
+        return "Error"
+
+
 def _answer_bytes(status: int, body: bytes, close: bool, extra=()) -> bytes:
     """An answer written without h11's state machine (answers that close the connection
     after a request h11 could not parse)."""
-    try:
-        phrase = HTTPStatus(status).phrase
-    except ValueError:
-        phrase = "Error"
-    head = [f"HTTP/1.1 {status} {phrase}", f"Server: {SERVER_NAME}",
+    head = [f"HTTP/1.1 {status} {_phrase(status)}", f"Server: {SERVER_NAME}",
             "Content-Type: application/json", f"Content-Length: {len(body)}", *extra]
     if close:
         head.append("Connection: close")
@@ -325,7 +336,8 @@ class _Handler(socketserver.BaseRequestHandler):
         if close:
             headers.append(("Connection", "close"))
         try:
-            data = (self.conn.send(h11.Response(status_code=status, headers=headers))
+            data = (self.conn.send(h11.Response(status_code=status, headers=headers,
+                                                reason=_phrase(status)))
                     + self.conn.send(h11.Data(data=body)) + self.conn.send(h11.EndOfMessage()))
         except h11.LocalProtocolError:  # h11 gave up on the request: write the answer as is
             data = _answer_bytes(status, body, True, [f"{k}: {v}" for k, v in extra])
