@@ -200,3 +200,29 @@ def test_flood_benchmark_runs_bounded(tmp_path):
     assert bench_flood.malformed_body(100, "numbers")[:3] == b"[1,"
     with pytest.raises(SystemExit):
         bench_flood.main([GOOD, "--flooders", "1000"])
+
+
+def test_flood_defences(server, policy):
+    """A body with more commas than any request of the policy holds is refused before the JSON
+    parser builds its values; after an error answer a kept connection's next request waits
+    ``error_pause`` (10 ms), so a flood of malformed requests cannot take the interpreter from
+    an honest client; ~0.1 s."""
+    from daddpg_jax.deploy.server import ServiceLimits
+
+    many = b"[" + b"1," * 1000
+    got = _exchange(server, _post(many, b"Content-Length: %d" % len(many)), wait=0.3)
+    assert got.startswith(b"HTTP/1.1 400") and b"commas" in got
+    bad, good = b"{not json", BODY.encode()
+    with socket.create_connection(server.address, timeout=2) as s:
+        t0 = time.perf_counter()
+        s.sendall(_post(bad, b"Content-Length: %d" % len(bad))
+                  + _post(good, b"Content-Length: %d" % len(good)))
+        got = b""
+        while got.count(b"HTTP/1.1 ") < 2 or not got.rstrip().endswith(b"}"):
+            got += s.recv(65536)
+        took = time.perf_counter() - t0
+    assert got.startswith(b"HTTP/1.1 400") and b"HTTP/1.1 200 OK" in got
+    assert took >= 0.01, took  # the second answer came after the pause
+    for bad_pause in (-1.0, 11.0, float("nan")):
+        with pytest.raises(ValueError):
+            ServiceLimits(error_pause=bad_pause)

@@ -20,6 +20,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+SWITCH_INTERVAL_S = 0.0005
+
 
 def main(argv=None) -> int:
     from daddpg_jax.deploy.server import (  # NumPy + stdlib; --help shows the defaults
@@ -78,6 +80,9 @@ def main(argv=None) -> int:
           f"(POST /act, GET /health, GET /info; request timeout {limits.request_timeout:g} s, "
           f"at most {limits.max_connections} connections{'; token required' if token else ''}"
           f"); policy sha256 {policy.sha256}; Ctrl-C stops", flush=True)
+    # this process only serves: switch threads every 0.5 ms instead of Python's 5 ms, so that
+    # the thread of a robot's request gets the interpreter soon while others parse a flood
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         server.serve_forever()
     except KeyboardInterrupt:

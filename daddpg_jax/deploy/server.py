@@ -70,10 +70,12 @@ IDLE_TIMEOUT_S = 10.0
 MAX_CONNECTIONS = 32
 MAX_DRAIN = 64 * 1024 * 1024
 LINGER_S = 0.5  # least time a closing connection is drained after its answer
+ERROR_PAUSE_S = 0.01  # after an error answer, a kept connection's next request waits this long
 REFUSAL_THREADS = 8  # connections over the cap answered 503 at once; beyond, closed unanswered
 REQUEST_FIELDS = ("observation", "desired_goal", "id")
 MAX_HEAD = 64 * 1024  # request line + headers, bytes (h11's limit; more: 431)
 SERVER_NAME = "daddpg-policy/2"
+MAX_ID_CHARS = 64
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,10 @@ class ServiceLimits:
     max_body: largest request body, bytes; max_depth: deepest JSON nesting; request_timeout: s
     from a request's first byte to the end of its body; idle_timeout: s a keep-alive connection
     may wait between requests; max_connections: open connections served at once; max_drain:
-    bytes read and discarded from a connection closed after an error.
+    bytes read and discarded from a connection closed after an error; error_pause: s a
+    connection kept open after an error answer (400, 404, 405, 415) waits before its next
+    request is read, so that a client flooding malformed requests cannot take the
+    interpreter from the others (an honest client rarely gets an error).
     """
 
     max_body: int = MAX_BODY
@@ -92,6 +97,7 @@ class ServiceLimits:
     idle_timeout: float = IDLE_TIMEOUT_S
     max_connections: int = MAX_CONNECTIONS
     max_drain: int = MAX_DRAIN
+    error_pause: float = ERROR_PAUSE_S
 
     def __post_init__(self):
         for name in ("max_body", "max_depth", "max_connections"):
@@ -103,6 +109,8 @@ class ServiceLimits:
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         if int(self.max_drain) < 0:
             raise ValueError(f"max_drain must be >= 0, got {self.max_drain!r}")
+        if not (0.0 <= float(self.error_pause) <= 10.0):
+            raise ValueError(f"error_pause must be in [0, 10] s, got {self.error_pause!r}")
 
 
 class RequestError(Exception):
@@ -122,28 +130,28 @@ class _ClientGone(Exception):
     """The client closed the connection, or it stayed idle past ``idle_timeout``."""
 
 
-_KEEP = b'"[]{}'
-_DROP = bytes(c for c in range(256) if c not in _KEEP)
-_STEP = np.zeros(256, np.int8)
-_STEP[list(b"[{")] = 1
-_STEP[list(b"]}")] = -1
+_DROP = bytes(c for c in range(256) if c not in b'"[]{}')
+_TO_STEP = bytes.maketrans(b"[{]}", b"\x01\x01\xff\xff")  # +1 / -1 as int8
 
 
 def json_depth_exceeds(body: bytes, max_depth: int) -> bool:
     """True when arrays/objects nest deeper than ``max_depth`` (brackets inside strings do not
-    count). Escapes go first (escaped backslashes, then escaped quotes, left to right as JSON
-    reads them), then everything but quotes and brackets (``bytes.translate``); the parts
-    between quotes are strings and are dropped, and the depth is a cumulative sum in NumPy.
-    Well under a millisecond for a 64 KiB body, whatever it holds."""
+    count). In C and NumPy, no per-byte Python: escapes go first (escaped backslashes, then
+    escaped quotes, left to right as JSON reads them), then every byte but quotes and brackets
+    (``bytes.translate``); the parts between quotes are strings and are dropped, and the depth
+    is a cumulative sum of +1/-1. Well under a millisecond for a 64 KiB body, whatever it
+    holds."""
     if body.count(b"[") + body.count(b"{") <= max_depth:
         return False
-    s = body.replace(b"\\\\", b"").replace(b'\\"', b"").translate(None, _DROP)
+    if b"\\" in body:
+        body = body.replace(b"\\\\", b"").replace(b'\\"', b"")
+    s = body.translate(None, _DROP)
     if b'"' in s:
         s = b"".join(s.split(b'"')[::2])
     if len(s) <= max_depth:
         return False
-    depth = np.cumsum(_STEP[np.frombuffer(s, np.uint8)], dtype=np.int32)
-    return bool(depth.max() > max_depth)
+    steps = np.frombuffer(s.translate(_TO_STEP), np.int8)
+    return bool(np.cumsum(steps, dtype=np.int32).max() > max_depth)
 
 
 def decode_body(body: bytes, max_depth: int) -> Any:
@@ -350,6 +358,7 @@ class _Handler(socketserver.BaseRequestHandler):
 
     def _error(self, status: int, message: str, close: bool = False, extra=()) -> bool:
         self.server.count("errors")
+        self.errored = True
         return self._send(status, {"error": message, "status": status}, close=close,
                           extra=extra)
 
@@ -357,7 +366,7 @@ class _Handler(socketserver.BaseRequestHandler):
 
     def _one_request(self) -> bool:
         """Reads, answers and finishes one request; True when the connection stays open."""
-        self.deadline, self.what = None, "-"
+        self.deadline, self.what, self.errored = None, "-", False
         try:
             try:
                 ev = self._event()
@@ -383,6 +392,8 @@ class _Handler(socketserver.BaseRequestHandler):
             self.linger = self.linger or close
             return False
         self.conn.start_next_cycle()
+        if self.errored and self.limits.error_pause > 0:
+            time.sleep(self.limits.error_pause)
         return True
 
     def _route(self, req: h11.Request) -> bool:
@@ -483,20 +494,26 @@ class _Handler(socketserver.BaseRequestHandler):
             raise RequestError(415, f"Content-Type must be application/json, got "
                                     f"{ctype[0].decode('latin-1')!r}")
         t0 = time.perf_counter()
+        p = self.server.policy
+        # a request holds num_arms * (obs + goal) numbers and an id of <= 64 characters: a body
+        # with more commas cannot be one, and is refused before the JSON parser (which holds the
+        # interpreter lock while it builds every value) sees it
+        most = p.num_arms * (p.obs_size + p.goal_size) + MAX_ID_CHARS + 8
+        if body.count(b",") > most:
+            raise RequestError(400, f"more than {most} commas: not a request of this policy")
         req_json = decode_body(body, self.limits.max_depth)
         if not isinstance(req_json, dict):
             raise RequestError(400, "request must be a JSON object with 'observation' and "
                                     "'desired_goal'")
         check_fields(req_json)
-        p = self.server.policy
         obs = parse_matrix("observation", req_json["observation"], p.num_arms, p.obs_size)
         goal = parse_matrix("desired_goal", req_json["desired_goal"], p.num_arms, p.goal_size)
         rid = req_json.get("id")
         if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))
-                                or (isinstance(rid, str) and len(rid) > 64)
+                                or (isinstance(rid, str) and len(rid) > MAX_ID_CHARS)
                                 or (isinstance(rid, int) and abs(rid) >= 2 ** 53)):
-            raise RequestError(400, "'id' must be an integer (|id| < 2^53) or a string of at "
-                                    "most 64 characters")
+            raise RequestError(400, f"'id' must be an integer (|id| < 2^53) or a string of at "
+                                    f"most {MAX_ID_CHARS} characters")
         try:
             action = np.asarray(p.act(obs, goal), np.float32)
         except ValueError as e:
