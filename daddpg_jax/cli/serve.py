@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     print(f"serving {policy.task}/{policy.algo} policy on {server.url} "
           f"(POST /act, GET /health, GET /info; request timeout {limits.request_timeout:g} s, "
           f"at most {limits.max_connections} connections{'; token required' if token else ''}"
-          f"); policy sha256 {policy.sha256}; Ctrl-C stops", flush=True)
+          f"); policy sha256 {getattr(policy, 'sha256', None)}; Ctrl-C stops", flush=True)
     # this process only serves: switch threads every 0.5 ms instead of Python's 5 ms, so that
     # the thread of a robot's request gets the interpreter soon while others parse a flood
     sys.setswitchinterval(SWITCH_INTERVAL_S)

@@ -518,7 +518,7 @@ class _Handler(socketserver.BaseRequestHandler):
             action = np.asarray(p.act(obs, goal), np.float32)
         except ValueError as e:
             raise RequestError(400, str(e)) from None
-        if action.shape != (p.action_size,) or not np.all(np.isfinite(action)):
+        if action.shape != (p.num_arms * p.arm_action,) or not np.all(np.isfinite(action)):
             self.server.count("nonfinite")
             raise RequestError(500, "the policy produced a non-finite or malformed action; "
                                     "none is sent")
