@@ -4,7 +4,8 @@ UTF-8 JSON, the nesting check is fast; /info reports the policy file's SHA-256, 
 it (--policy-sha256), and the service can require a shared token (--token-file, 401 without it).
 An honest request on the same server still gets 200 (positive control).
 
-In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~3 s."""
+In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~3 s, and ~5 s
+more for the e2e test of the flood benchmark."""
 
 from __future__ import annotations
 

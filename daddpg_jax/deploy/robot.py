@@ -322,7 +322,7 @@ def _episode_summary(res, stops, errors, clear_min, rtts, complete=True, stale=0
                 stops=stops, stale=stale, errors=errors[:5], min_arm_clearance=float(clear_min),
                 rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)),
                 step_ms_p99=float(np.percentile(step_ms, 99)), step_ms_max=float(max(step_ms)),
-                complete=complete)
+                step_ms=[round(float(x), 3) for x in step_ms], complete=complete)
 
 
 def _log_step(log, t, age, seen, goal, answer, info, decision, ctrl, missed_why):
@@ -486,6 +486,12 @@ def replay_episode(env, log: dict):
     return res
 
 
+def _pooled(eps, key, fn):
+    """``fn`` over the lists ``key`` of every episode pooled (None when there are none)."""
+    vals = [x for e in eps for x in e.get(key, ())]
+    return round(float(fn(vals)), 3) if vals else None
+
+
 def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
                        monitor: OutageMonitor | None = None, aborted: dict | None = None) -> dict:
     """The run's summary from the episodes' summaries (``run_episode``).
@@ -510,8 +516,8 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
                 mean_final_distance=stat(np.mean, "final_distance", counted),
                 stops=int(sum(e["stops"] for e in eps)),
                 stale=int(sum(e.get("stale", 0) for e in eps)),
-                step_ms_p99=stat(max, "step_ms_p99", eps),
-                step_ms_max=stat(max, "step_ms_max", eps),
+                step_ms_p99=_pooled(eps, "step_ms", lambda x: np.percentile(x, 99)),
+                step_ms_max=_pooled(eps, "step_ms", np.max),
                 outages=0 if monitor is None else monitor.outages,
                 longest_outage_s=None if monitor is None else round(monitor.longest_s, 3),
                 safety_counts=dict(safety_counts or {}),
