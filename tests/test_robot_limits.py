@@ -59,13 +59,13 @@ def _toml(d: dict) -> str:
 
 def test_shipped_files_and_defaults():
     cell, sim, default = RobotLimits.load(CELL), RobotLimits.load(SIM), RobotLimits()
-    assert cell.max_speed == 0.25 and cell.control_period == 0.04 and cell.deadline == 0.04
+    assert cell.max_speed == 0.25 and cell.control_period == 0.04 and cell.deadline == 0.03
     assert sim.max_speed == pytest.approx(2.17) and sim.min_clearance == 0.01
     # the defaults are conservative: no faster and no closer than the cell's file
     assert default.max_speed <= cell.max_speed and default.min_clearance >= cell.min_clearance
     np.testing.assert_allclose(cell.workspace_low, default.workspace_low)
     s = cell.safety_limits()
-    assert s.max_step == pytest.approx(0.25 * 0.04) and s.deadline_s == 0.04
+    assert s.max_step == pytest.approx(0.25 * 0.04) and s.deadline_s == 0.03
     assert cell.safety_limits(speed_scale=0.5).max_step == pytest.approx(0.005)
     j = RobotLimits.from_dict(json.loads(json.dumps(_cell_dict())))
     assert dataclasses.replace(j, source="") == dataclasses.replace(cell, source="")
@@ -127,9 +127,9 @@ def test_overrides_only_tighten():
     enlarged the box, --min-clearance nan let targets out: all refused now."""
     cell = RobotLimits.load(CELL)
     t = cell.tightened(max_speed=0.1, min_clearance=0.08, workspace_margin=0.01,
-                       deadline=0.03, max_observation_age=0.05)
+                       deadline=0.025, max_observation_age=0.05)
     assert (t.max_speed, t.min_clearance, t.deadline, t.max_observation_age) == \
-        (0.1, 0.08, 0.03, 0.05)
+        (0.1, 0.08, 0.025, 0.05)
     np.testing.assert_allclose(np.asarray(t.workspace_low), np.asarray(cell.workspace_low) + 0.01)
     for kw in ({"max_speed": -1.0}, {"max_speed": float("nan")}, {"max_speed": float("inf")},
                {"max_speed": 0.5}, {"min_clearance": float("nan")}, {"min_clearance": 0.01},

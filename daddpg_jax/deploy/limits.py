@@ -77,7 +77,7 @@ class RobotLimits:
     max_speed: float = 0.25
     min_clearance: float = 0.05
     control_period: float = _TASK.timestep * _TASK.n_substeps
-    deadline: float = _TASK.timestep * _TASK.n_substeps
+    deadline: float = 0.03  # of a 40 ms period: a hold goes out within the period
     finger_min: float = 0.0
     finger_max: float = _TASK.finger_stroke
     task: str = ""
