@@ -310,7 +310,8 @@ def test_client_loop_matches_trainer_rollout(tiny_served, jenv, settings, jax_st
 @pytest.fixture(scope="module")
 def fast_limits(tmp_path_factory):
     """--limits and --fast for the client commands: the simulator's limits with a 2 s deadline
-    (allowed unpaced), so that a loaded machine does not turn answers into missed deadlines."""
+    and observation age (allowed unpaced), so that a loaded machine does not turn answers into
+    missed deadlines."""
     import tomllib
 
     from daddpg_jax.deploy.limits import SHIPPED
@@ -318,7 +319,7 @@ def fast_limits(tmp_path_factory):
     with open(os.path.join(SHIPPED, "sim.toml"), "rb") as f:
         d = tomllib.load(f)
     path = tmp_path_factory.mktemp("limits") / "sim_2s.json"
-    path.write_text(json.dumps({**d, "deadline": 2.0}))
+    path.write_text(json.dumps({**d, "deadline": 2.0, "max_observation_age": 2.0}))
     return ["--limits", str(path), "--fast"]
 
 

@@ -178,14 +178,14 @@ def _run(policy, tmp_path, capsys, *args, **lie):
 
 
 def _sim_limits(tmp_path) -> str:
-    """The simulator's limits with a 2 s deadline (allowed unpaced): a loaded test machine
-    must not turn the positive controls into missed deadlines."""
+    """The simulator's limits with a 2 s deadline and observation age (allowed unpaced): a
+    loaded test machine must not turn the positive controls into missed deadlines."""
     import tomllib
 
     with open(SIM, "rb") as f:
         d = tomllib.load(f)
     path = tmp_path / "sim_slow.json"
-    path.write_text(json.dumps({**d, "deadline": 2.0}))
+    path.write_text(json.dumps({**d, "deadline": 2.0, "max_observation_age": 2.0}))
     return str(path)
 
 

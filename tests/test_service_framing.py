@@ -149,7 +149,8 @@ def test_client_pins_the_sha256(server, capsys, tmp_path):
     from daddpg_jax.deploy.limits import SHIPPED
 
     with open(os.path.join(SHIPPED, "sim.toml"), "rb") as f:
-        limits.write_text(json.dumps({**tomllib.load(f), "deadline": 2.0}))
+        limits.write_text(json.dumps({**tomllib.load(f), "deadline": 2.0,
+                                      "max_observation_age": 2.0}))
     code, cap = _client(server.url, "--limits", str(limits), "--policy-sha256", want.upper(),
                         capsys=capsys)
     assert code == 0, cap.err
