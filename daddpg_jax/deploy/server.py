@@ -375,7 +375,7 @@ class _Handler(socketserver.BaseRequestHandler):
                     raise _ClientGone from None
                 self.server.count("requests")
                 status = e.error_status_hint if e.error_status_hint in (400, 431, 501) else 400
-                return not self._error(status, f"malformed request: {e}", close=True)
+                return not self._error(status, f"malformed request: {str(e)[:200]}", close=True)
             if isinstance(ev, h11.ConnectionClosed):
                 return False
             self.server.count("requests")
@@ -403,7 +403,7 @@ class _Handler(socketserver.BaseRequestHandler):
         except RequestError as e:
             return self._error(e.status, e.message, close=e.close, extra=e.extra)
         except h11.RemoteProtocolError as e:  # malformed body framing
-            return self._error(400, f"malformed request: {e}", close=True)
+            return self._error(400, f"malformed request: {str(e)[:200]}", close=True)
         except (_DeadlinePassed, _ClientGone, OSError):
             raise
         except Exception as e:  # noqa: BLE001 - the service must survive any request
