@@ -307,24 +307,39 @@ def test_client_loop_matches_trainer_rollout(tiny_served, jenv, settings, jax_st
     client.close()
 
 
-def test_robot_client_cli(tiny_served, tmp_path):
+@pytest.fixture(scope="module")
+def fast_limits(tmp_path_factory):
+    """--limits and --fast for the client commands: the simulator's limits with a 2 s deadline
+    and observation age (allowed unpaced), so that a loaded machine does not turn answers into
+    missed deadlines."""
+    import tomllib
+
+    from daddpg_jax.deploy.limits import SHIPPED
+
+    with open(os.path.join(SHIPPED, "sim.toml"), "rb") as f:
+        d = tomllib.load(f)
+    path = tmp_path_factory.mktemp("limits") / "sim_2s.json"
+    path.write_text(json.dumps({**d, "deadline": 2.0, "max_observation_age": 2.0}))
+    return ["--limits", str(path), "--fast"]
+
+
+def test_robot_client_cli(tiny_served, tmp_path, fast_limits):
     srv = tiny_served[0]
     script = os.path.join(ROOT, "experiments", "robot_client.py")
     env = dict(os.environ, JAX_PLATFORMS="cpu")
 
     def client(*args):
-        return subprocess.run([sys.executable, script, "--server", srv.url, *args],
+        return subprocess.run([sys.executable, script, "--server", srv.url, *fast_limits, *args],
                               capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
 
     out_json = tmp_path / "client.json"
-    r = client("--task", "reach", "--episodes", "2", "--seed", "1", "--deadline-ms", "2000",
-               "--json", str(out_json))
+    r = client("--task", "reach", "--episodes", "2", "--seed", "1", "--json", str(out_json))
     assert r.returncode == 0, r.stderr
     res = json.loads(out_json.read_text())
     assert res["episodes"] == 2 and res["task"] == "reach" and res["stops"] == 0
     assert res["excluded_episodes"] == 0 and res["aborted"] is None and res["outages"] == 0
-    assert "outage" not in r.stderr
-    r = client("--episodes", "1", "--deadline-ms", "2000")  # the task from GET /info
+    assert "policy service outage" not in r.stderr
+    r = client("--episodes", "1")  # the task from GET /info
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["task"] == "reach"
     r = client("--task", "push", "--episodes", "1")
@@ -482,7 +497,7 @@ def _start_service(path):
     return proc, m.group(1)
 
 
-def _client_against(path, after_requests, fault, *args):
+def _client_against(path, after_requests, fault, *args, limits=()):
     """Starts a service in a subprocess and the robot client (400 episodes) against it; once the
     service has answered ``after_requests`` requests, applies ``fault`` to the service process.
     Returns (client's CompletedProcess-like result, seconds from the fault to the client's exit)."""
@@ -490,7 +505,7 @@ def _client_against(path, after_requests, fault, *args):
     cl = None
     try:
         cl = subprocess.Popen([sys.executable, CLIENT, "--server", url, "--episodes", "400",
-                               *args], cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                               *limits, *args], cwd=ROOT, text=True, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, env=dict(os.environ, JAX_PLATFORMS="cpu"))
         probe, polls = PolicyClient(url, timeout=5.0), 0
         deadline = time.monotonic() + 60
@@ -516,7 +531,10 @@ def _client_against(path, after_requests, fault, *args):
 def _check_aborted(r, n_lines=2):
     assert r.returncode == 3, (r.returncode, r.stderr)
     assert "Traceback" not in r.stderr
-    lines = r.stderr.strip().splitlines()
+    # the limits at start and the human-readable summary besides the outage lines
+    lines = [ln for ln in r.stderr.strip().splitlines()
+             if ln.startswith(("policy service", "error:"))]
+    assert r.stderr.startswith("limits (") and "\nsuccess: " in r.stderr
     assert len(lines) == n_lines, lines
     assert lines[0].startswith("policy service outage at episode")  # when it started
     assert lines[-1].startswith("error: policy service outage: ") and "aborted in episode" in \
@@ -531,11 +549,11 @@ def _check_aborted(r, n_lines=2):
     return out
 
 
-def test_robot_client_aborts_when_service_is_killed(tiny_served):
+def test_robot_client_aborts_when_service_is_killed(tiny_served, fast_limits):
     """The service process is killed after 3 episodes: exit code 3, the outage reported when it
     starts and the abort in one line each, no traceback, the interrupted episodes not counted."""
     path, n = tiny_served[3], 50
-    r, after = _client_against(path, 3 * n + 3, lambda p: p.kill(), "--deadline-ms", "2000")
+    r, after = _client_against(path, 3 * n + 3, lambda p: p.kill(), limits=fast_limits)
     out = _check_aborted(r)
     assert "50 consecutive missed deadlines" in out["aborted"]["reason"]
     print(f"\n[measured] service killed: client exit code 3 {after:.2f} s after the kill "
@@ -543,12 +561,12 @@ def test_robot_client_aborts_when_service_is_killed(tiny_served):
           f"deadlines; {out['episodes']} episodes counted, {out['excluded_episodes']} excluded)")
 
 
-def test_robot_client_aborts_when_service_hangs(tiny_served):
+def test_robot_client_aborts_when_service_hangs(tiny_served, fast_limits):
     """A frozen service (SIGSTOP: connections accepted, never answered): the time limit."""
     path, n = tiny_served[3], 50
     r, after = _client_against(path, 3 * n + 3, lambda p: p.send_signal(signal.SIGSTOP),
                                "--deadline-ms", "400", "--max-outage-s", "0.8",
-                               "--max-missed", "1000")
+                               "--max-missed", "1000", limits=fast_limits)
     out = _check_aborted(r)
     assert 0.8 <= out["aborted"]["outage_s"] < 1.6
     assert 2 <= out["aborted"]["missed"] <= 3 and "timed out" in out["aborted"]["last_error"]

@@ -130,9 +130,9 @@ def test_client_keeps_connection_and_matches(server, policy):
         a, info = c.act(o, g)
         assert "error" not in info
         np.testing.assert_array_equal(np.asarray(a, np.float32), policy.act(o, g))
-    sock = c._conn.sock
+    sock = c._sock
     c.act(*_inputs(99))
-    assert c._conn.sock is sock  # one keep-alive connection
+    assert c._sock is sock  # one keep-alive connection
     assert c.info()["task"] == "reach"
     c.close()
 
@@ -435,14 +435,14 @@ def test_idle_keepalive_connection_is_closed(limited, policy):
     srv = limited(idle_timeout=0.3, request_timeout=5.0)
     client = PolicyClient(srv.url, timeout=5)
     assert client.act(*_inputs())[0] is not None
-    sock = client._conn.sock
+    sock = client._sock
     t0 = time.perf_counter()
     sock.settimeout(5)
     assert sock.recv(100) == b""  # the server closed the idle connection
     assert 0.25 <= time.perf_counter() - t0 < 2.0
     a, info = client.act(*_inputs())  # sent again on a new connection: no missed deadline
     assert a is not None, info
-    assert client._conn.sock is not sock
+    assert client._sock is not sock
     client.close()
 
 

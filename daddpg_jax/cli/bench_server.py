@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     if (args.policy is None) == (args.url is None):
         p.error("give either a policy file or --url")
 
-    from daddpg_jax.deploy import NumpyPolicy
+    from daddpg_jax.deploy import NumpyPolicy, PolicyFormatError
     from daddpg_jax.deploy.server import PolicyClient
 
     proc = None
@@ -129,7 +129,11 @@ def main(argv=None) -> int:
         obs_size, task, algo = info["obs_size"], info["task"], info["algo"]
         layers = info["layer_sizes"]
     else:
-        policy = NumpyPolicy.load(args.policy)
+        try:
+            policy = NumpyPolicy.load(args.policy)
+        except (FileNotFoundError, PolicyFormatError) as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         proc, url = start_service(args.policy)
         obs_size, task, algo = policy.obs_size, policy.task, policy.algo
         layers = policy.meta["layer_sizes"]

@@ -37,9 +37,13 @@ def main(argv=None) -> int:
     except ExportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    from daddpg_jax.deploy import NumpyPolicy
+    from daddpg_jax.deploy import NumpyPolicy, PolicyFormatError
 
-    pol = NumpyPolicy.load(path)
+    try:
+        pol = NumpyPolicy.load(path)
+    except PolicyFormatError as e:
+        print(f"error: the written file does not read back: {e}", file=sys.stderr)
+        return 1
     best = " (best test success)" if args.best else ""
     print(f"wrote {path}: task {pol.task}, algo {pol.algo}, checkpoint "
           f"{pol.meta['source'].get('checkpoint_step')}{best}, layers {pol.meta['layer_sizes']}, "

@@ -18,8 +18,12 @@ in a subprocess where importing jax or mujoco fails).
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
+import math
 import os
+import zipfile
 from collections.abc import Mapping
 from typing import Any
 
@@ -33,8 +37,155 @@ FORMAT_VERSION = 1
 """Version of the ``.npz`` layout, written by ``daddpg_jax.running.export`` and read here."""
 
 
+MAX_FILE_BYTES = 512 * 1024 * 1024
+"""Largest policy file read (bytes); a bigger one is refused before any member is read."""
+MAX_META_BYTES = 1024 * 1024
+"""Largest ``meta`` member (its stored ``.npy`` size, bytes)."""
+MAX_MEMBERS = 256
+"""Most members a policy file may hold."""
+MAX_WIDTH = 8192
+"""Largest layer width, observation or goal size a policy file may declare."""
+MAX_LAYERS = 32
+"""Most actor layers a policy file may declare."""
+MAX_AGENTS = 8
+"""Most agents a policy file may declare."""
+NPY_HEADER_BYTES = 4096
+"""Room for a member's ``.npy`` header beyond its data: a member is read only up to its
+declared shape's bytes plus this."""
+
+
 class PolicyFormatError(ValueError):
-    """The .npz file is not a policy export this code can read."""
+    """The file is not a policy export this code can read (malformed, truncated, oversized,
+    non-finite values, or ``meta`` outside its schema); the message is one line."""
+
+
+def _fail(msg: str):
+    raise PolicyFormatError(msg)
+
+
+def _int(meta: Mapping, key: str, low: int = 1, high: int = MAX_WIDTH) -> int:
+    v = meta.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+        _fail(f"meta {key!r} must be an integer in [{low}, {high}], got {v!r}")
+    return v
+
+
+def _finite(where: str, v, positive: bool = False, low: float | None = None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        _fail(f"{where} must be a finite number, got {v!r}")
+    if positive and not v > 0:
+        _fail(f"{where} must be > 0, got {v!r}")
+    if low is not None and v < low:
+        _fail(f"{where} must be >= {low}, got {v!r}")
+    return float(v)
+
+
+def check_meta(meta) -> None:
+    """Raises PolicyFormatError unless ``meta`` (a policy export's decoded ``meta``) follows the
+    schema that ``daddpg_jax.running.export.policy_arrays`` writes: the types and ranges of the
+    sizes, the layer list, the normalizer clips (finite, > 0), the action scaling (finite) and
+    the env's control period (``dt`` finite, in (0, 1] s, equal to ``timestep * n_substeps``
+    when those are saved)."""
+    if not isinstance(meta, dict):
+        _fail(f"meta must be a JSON object, got {type(meta).__name__}")
+    version = meta.get("format_version")
+    if version != FORMAT_VERSION or isinstance(version, bool):
+        _fail(f"format version {version}; this code reads version {FORMAT_VERSION}")
+    for key in ("task", "algo"):
+        if not isinstance(meta.get(key), str) or not 0 < len(meta[key]) <= 64:
+            _fail(f"meta {key!r} must be a short string, got {meta.get(key)!r}")
+    for key in ("obs_size", "goal_size", "action_size", "arm_action", "actor_input_dim"):
+        _int(meta, key)
+    if "num_arms" in meta:
+        _int(meta, "num_arms", high=MAX_AGENTS)
+    if "num_agents" in meta:
+        _int(meta, "num_agents", high=MAX_AGENTS)
+    layers = meta.get("layer_sizes")
+    if (not isinstance(layers, list) or not 0 < len(layers) <= MAX_LAYERS or any(
+            not isinstance(ls, list) or len(ls) != 2
+            or any(isinstance(x, bool) or not isinstance(x, int) or not 1 <= x <= MAX_WIDTH
+                   for x in ls) for ls in layers)):
+        _fail(f"meta 'layer_sizes' must be a list of at most {MAX_LAYERS} [in, out] pairs of "
+              f"integers in [1, {MAX_WIDTH}]")
+    n = meta.get("normalizer")
+    if not isinstance(n, dict):
+        _fail("meta 'normalizer' must be an object with clip_obs and norm_clip")
+    for key in ("clip_obs", "norm_clip"):
+        _finite(f"normalizer {key}", n.get(key), positive=True)
+    a = meta.get("action")
+    if not isinstance(a, dict):
+        _fail("meta 'action' must be an object")
+    for key in ("low", "high", "max_delta", "finger_stroke", "locked_opening"):
+        if key in a:
+            _finite(f"action {key}", a[key])
+    if "max_delta" in a:
+        _finite("action max_delta", a["max_delta"], positive=True)
+    layout = meta.get("obs_layout")
+    if not isinstance(layout, dict) or any(
+            not isinstance(v, list) or len(v) != 2
+            or any(isinstance(x, bool) or not isinstance(x, int) for x in v)
+            or not 0 <= v[0] <= v[1] <= meta["obs_size"] for v in layout.values()):
+        _fail("meta 'obs_layout' must map names to [start, stop] inside the observation")
+    env = meta.get("env")
+    if env is not None:
+        check_env(env)
+
+
+def check_env(env) -> None:
+    """Raises PolicyFormatError unless a policy export's env settings hold a finite control
+    period ``dt`` in (0, 1] s (equal to ``timestep * n_substeps`` when both are saved) and
+    finite, positive ``max_delta`` when saved."""
+    if not isinstance(env, dict):
+        _fail(f"meta 'env' must be an object, got {type(env).__name__}")
+    if "dt" in env:
+        dt = _finite("env dt", env["dt"], positive=True)
+        if dt > 1.0:
+            _fail(f"env dt must be in (0, 1] s, got {dt!r}")
+        if "timestep" in env and "n_substeps" in env:
+            ts = _finite("env timestep", env["timestep"], positive=True)
+            ns = env["n_substeps"]
+            if isinstance(ns, bool) or not isinstance(ns, int) or ns < 1:
+                _fail(f"env n_substeps must be a positive integer, got {ns!r}")
+            if abs(ts * ns - dt) > 1e-6 * max(dt, 1e-3):
+                _fail(f"env dt {dt!r} is not timestep * n_substeps = {ts * ns!r}")
+    if "max_delta" in env:
+        _finite("env max_delta", env["max_delta"], positive=True)
+
+
+def _member(zf: zipfile.ZipFile, infos: Mapping, name: str, limit: int) -> np.ndarray:
+    """Array ``name`` of the npz, read only when its stored size is at most ``limit`` bytes."""
+    info = infos.get(name + ".npy")
+    if info is None:
+        _fail(f"misses array {name!r}")
+    if info.file_size > limit:
+        _fail(f"array {name!r} takes {info.file_size} bytes, more than its declared shape "
+              f"allows ({limit})")
+    with zf.open(info) as f:
+        raw = f.read(limit + 1)
+    if len(raw) > limit:
+        _fail(f"array {name!r} is larger than its declared shape allows")
+    return np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+
+
+def _float_array(zf, infos, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    limit = int(np.prod(shape, dtype=np.int64)) * 8 + NPY_HEADER_BYTES
+    arr = _member(zf, infos, name, limit)
+    if arr.dtype.kind != "f":
+        _fail(f"array {name!r} has dtype {arr.dtype}, expected floats")
+    if arr.shape != shape:
+        _fail(f"array {name!r} has shape {list(arr.shape)}, expected {list(shape)}")
+    if not np.all(np.isfinite(arr)):
+        _fail(f"array {name!r} contains NaN or infinite values")
+    return arr
+
+
+def file_sha256(path) -> str:
+    """SHA-256 of a file's bytes, in hex (what ``sha256sum`` prints)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def task_settings(task: str, saved: Mapping[str, Any] | None = None):
@@ -58,6 +209,10 @@ def env_settings(task: str, saved: Mapping[str, Any] | None = None) -> dict[str,
     return out
 
 
+def _no_constant(name):
+    raise ValueError(f"{name} is not valid JSON")
+
+
 def _check_input(name: str, x, tail: tuple[int, ...]) -> np.ndarray:
     try:
         arr = np.asarray(x, dtype=np.float64)
@@ -76,7 +231,9 @@ class NumpyPolicy:
 
     def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray],
                  obs_mean, obs_std, goal_mean, goal_std, meta: dict[str, Any]):
+        check_meta(meta)
         self.meta = meta
+        self.sha256: str | None = None  # of the file's bytes; set by `load`
         self.algo = str(meta["algo"])
         if self.algo not in variants.VARIANTS:
             raise PolicyFormatError(f"unknown algo {self.algo!r} in policy file; this code "
@@ -91,46 +248,71 @@ class NumpyPolicy:
         n = meta["normalizer"]
         self.clip_obs = np.float32(n["clip_obs"])
         self.norm_clip = np.float32(n["norm_clip"])
-        self.weights = [np.ascontiguousarray(w, np.float32) for w in weights]
-        self.biases = [np.ascontiguousarray(b, np.float32) for b in biases]
-        self.obs_mean = np.asarray(obs_mean, np.float32)
-        self.obs_std = np.asarray(obs_std, np.float32)
-        self.goal_mean = np.asarray(goal_mean, np.float32)
-        self.goal_std = np.asarray(goal_std, np.float32)
+        with np.errstate(over="ignore"):  # float64 beyond float32 -> inf, refused below
+            self.weights = [np.ascontiguousarray(w, np.float32) for w in weights]
+            self.biases = [np.ascontiguousarray(b, np.float32) for b in biases]
+            self.obs_mean = np.asarray(obs_mean, np.float32)
+            self.obs_std = np.asarray(obs_std, np.float32)
+            self.goal_mean = np.asarray(goal_mean, np.float32)
+            self.goal_std = np.asarray(goal_std, np.float32)
         self.num_agents = int(self.weights[0].shape[0])
         try:
             self._env = env_settings(self.task, meta.get("env"))
         except ValueError as e:
             raise PolicyFormatError(f"env settings of the policy file: {e}") from None
+        check_env(self._env)
         self._validate()
 
     # -- loading ------------------------------------------------------------------------------
 
     @classmethod
     def load(cls, path) -> NumpyPolicy:
+        """The policy in the ``.npz`` at ``path``. Raises FileNotFoundError when it does not
+        exist and PolicyFormatError (one line) for anything else that is wrong with it:
+        not a zip, truncated, ``meta`` outside its schema (``check_meta``), a missing array, an
+        array larger than its declared shape (read no further: memory stays bounded by the
+        declared shapes), wrong shapes or dtypes, NaN/inf values, std <= 0. ``sha256`` holds the
+        SHA-256 of the file's bytes."""
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"policy file {path!r} not found")
         try:
-            with np.load(path, allow_pickle=False) as f:
-                data = {k: f[k] for k in f.files}
-        except (OSError, ValueError) as e:
-            raise PolicyFormatError(f"{path!r} is not a readable .npz policy file: {e}") from None
-        if "meta" not in data:
-            raise PolicyFormatError(f"{path!r} has no 'meta' entry: not a policy export")
-        meta = json.loads(str(data["meta"]))
-        version = int(meta.get("format_version", -1))
-        if version != FORMAT_VERSION:
-            raise PolicyFormatError(f"{path!r} has format version {version}; this code reads "
-                                    f"version {FORMAT_VERSION}")
-        n_layers = len(meta["layer_sizes"])
-        try:
-            ws = [data[f"actor/W{i}"] for i in range(n_layers)]
-            bs = [data[f"actor/b{i}"] for i in range(n_layers)]
-            norm = [data[k] for k in ("obs_norm/mean", "obs_norm/std", "goal_norm/mean",
-                                      "goal_norm/std")]
-        except KeyError as e:
-            raise PolicyFormatError(f"{path!r} misses array {e}") from None
+            policy = cls._read(path)
+            policy.sha256 = file_sha256(path)
+        except PolicyFormatError as e:
+            raise PolicyFormatError(f"{path!r}: {e}") from None
+        except Exception as e:  # noqa: BLE001 - any other failure of a malformed file
+            text = " ".join(str(e).split())[:200]
+            raise PolicyFormatError(f"{path!r} is not a readable .npz policy file: "
+                                    f"{type(e).__name__}: {text}") from None
+        return policy
+
+    @classmethod
+    def _read(cls, path: str) -> NumpyPolicy:
+        size = os.path.getsize(path)
+        if size > MAX_FILE_BYTES:
+            _fail(f"file of {size} bytes exceeds the limit of {MAX_FILE_BYTES}")
+        with zipfile.ZipFile(path) as zf:
+            members = zf.infolist()
+            if len(members) > MAX_MEMBERS:
+                _fail(f"{len(members)} members, more than {MAX_MEMBERS}")
+            infos = {i.filename: i for i in members}
+            if "meta.npy" not in infos:
+                _fail("no 'meta' entry: not a policy export")
+            raw = _member(zf, infos, "meta", MAX_META_BYTES)
+            if raw.dtype.kind != "U" or raw.shape != ():
+                _fail("'meta' must be a JSON string")
+            meta = json.loads(str(raw), parse_constant=_no_constant)
+            check_meta(meta)
+            arms = int(meta.get("num_arms", variants.NUM_ARMS))
+            agents = int(meta.get("num_agents", variants.get(meta["algo"]).num_agents
+                                  if meta["algo"] in variants.VARIANTS else 1))
+            ws, bs = [], []
+            for i, (n_in, n_out) in enumerate(meta["layer_sizes"]):
+                ws.append(_float_array(zf, infos, f"actor/W{i}", (agents, n_in, n_out)))
+                bs.append(_float_array(zf, infos, f"actor/b{i}", (agents, n_out)))
+            norm = [_float_array(zf, infos, f"{k}_norm/{s}", (arms, meta[f"{k}_size"]))
+                    for k in ("obs", "goal") for s in ("mean", "std")]
         return cls(ws, bs, *norm, meta=meta)
 
     def _validate(self):
@@ -166,8 +348,14 @@ class NumpyPolicy:
                 raise PolicyFormatError(f"{name} normalizer has shape {arr.shape}")
         if not all(np.all(np.isfinite(x)) for x in self.weights + self.biases):
             raise PolicyFormatError("actor weights contain NaN or infinite values")
+        if not all(np.all(np.isfinite(x)) for x in (self.obs_mean, self.obs_std,
+                                                      self.goal_mean, self.goal_std)):
+            raise PolicyFormatError("normalizer contains NaN or infinite values")
         if np.any(self.obs_std <= 0) or np.any(self.goal_std <= 0):
             raise PolicyFormatError("normalizer std must be positive")
+        if not (np.isfinite(self.clip_obs) and np.isfinite(self.norm_clip)
+                and self.clip_obs > 0 and self.norm_clip > 0):
+            raise PolicyFormatError("normalizer clips must be finite and positive")
 
     # -- properties the robot side uses -------------------------------------------------------
 
@@ -187,10 +375,13 @@ class NumpyPolicy:
         m = self.meta
         return dict(format_version=m["format_version"], task=self.task, algo=self.algo,
                     num_agents=self.num_agents, obs_size=self.obs_size, goal_size=self.goal_size,
-                    action_size=self.action_size, obs_layout=m["obs_layout"],
+                    action_size=self.action_size, num_arms=self.num_arms,
+                    arm_action=self.arm_action, obs_layout=m["obs_layout"],
                     obs_fields=m.get("obs_fields"), layer_sizes=m["layer_sizes"],
                     action=m["action"], env=self.env,
-                    checkpoint_step=m.get("source", {}).get("checkpoint_step"))
+                    checkpoint_step=(m.get("source") or {}).get("checkpoint_step")
+                    if isinstance(m.get("source") or {}, dict) else None,
+                    policy_sha256=self.sha256)
 
     # -- inference ----------------------------------------------------------------------------
 

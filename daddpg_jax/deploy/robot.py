@@ -273,37 +273,129 @@ class OutageMonitor:
             self.missed, self.since = 0, None
 
 
-def _episode_summary(res, stops, errors, clear_min, rtts, complete=True) -> dict:
+OVERRUN_TOLERANCE_S = 0.002
+"""A control period that starts more than this late (its previous one overran) counts as an
+overrun; the schedule then restarts from now instead of catching up."""
+
+
+class Pacer:
+    """Runs the control loop once per ``period`` seconds on a monotonic clock.
+
+    ``wait()`` sleeps until the next period starts and returns its start time. When the work of
+    a period took longer than the period (the next one would start more than
+    ``OVERRUN_TOLERANCE_S`` late) it counts an overrun and restarts the schedule from now: the
+    loop never runs periods back to back to catch up. ``restart()`` between episodes.
+    """
+
+    def __init__(self, period: float, clock=time.perf_counter, sleep=time.sleep):
+        if not period > 0:
+            raise ValueError(f"period must be > 0 s, got {period!r}")
+        self.period, self.clock, self.sleep = float(period), clock, sleep
+        self.next: float | None = None
+        self.periods = 0
+        self.overruns = 0
+        self.longest_late_s = 0.0
+
+    def restart(self):
+        self.next = None
+
+    def wait(self) -> float:
+        now = self.clock()
+        if self.next is None:
+            self.next = now
+        elif now - self.next > OVERRUN_TOLERANCE_S:
+            self.overruns += 1
+            self.longest_late_s = max(self.longest_late_s, now - self.next)
+            self.next = now
+        elif now < self.next:
+            self.sleep(self.next - now)
+        start = self.next
+        self.next += self.period
+        self.periods += 1
+        return start
+
+
+def _episode_summary(res, stops, errors, clear_min, rtts, complete=True, stale=0,
+                     step_ms=None) -> dict:
+    step_ms = step_ms or [0.0]
     return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),
-                stops=stops, errors=errors[:5], min_arm_clearance=float(clear_min),
+                stops=stops, stale=stale, errors=errors[:5], min_arm_clearance=float(clear_min),
                 rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)),
-                complete=complete)
+                step_ms_p99=float(np.percentile(step_ms, 99)), step_ms_max=float(max(step_ms)),
+                step_ms=[round(float(x), 3) for x in step_ms], complete=complete)
+
+
+def _log_step(log, t, age, seen, goal, answer, info, decision, ctrl, missed_why):
+    log.append(dict(t=round(float(t), 6), obs_age_ms=round(age * 1e3, 3),
+                    observation=np.asarray(seen, float).round(6).tolist(),
+                    desired_goal=np.asarray(goal, float).round(6).tolist(),
+                    action=None if answer is None else np.asarray(answer, float).tolist(),
+                    target=np.asarray(decision.target, float).tolist(),
+                    finger_ctrl=np.asarray(ctrl, float).tolist(), stopped=bool(decision.stopped),
+                    reasons=list(decision.reasons), missed=missed_why,
+                    rtt_ms=round(float(info.get("rtt_ms", 0.0)), 3),
+                    server_ms=info.get("server_ms")))
+
+
+def _judge(safety, answer, info, rtt, deadline, age, max_age):
+    """(validated action or None, why the period is a missed deadline or None, the hold's
+    reason: stop / late / stale)."""
+    action = None if answer is None else safety.validate_action(answer)
+    if action is None:
+        return None, info.get("error") or "malformed answer", "stop"
+    if rtt > deadline:
+        return action, f"late answer ({rtt * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)", "late"
+    if max_age is not None and age > max_age:
+        return action, (f"stale observation ({age * 1e3:.1f} ms old > {max_age * 1e3:.1f} "
+                        f"ms)"), "stale"
+    return action, None, None
+
+
+def _report(monitor: OutageMonitor | None, why: str | None, sent_at: float, where: str):
+    """Tells the monitor (if any) how the period went: answered, or a missed deadline."""
+    if monitor is None:
+        return
+    if why is None:
+        monitor.answered()
+    else:
+        monitor.missed_deadline(why, sent_at=sent_at, where=where)
+
+
+def _limit_fingers(safety, ctrl, decision):
+    """The finger command within the limits' range (counted as ``finger`` when clipped)."""
+    limited = safety.finger_opening(ctrl)
+    if np.any(limited != ctrl):
+        decision.reasons.append("finger")
+        safety.counts["finger"] = safety.counts.get("finger", 0) + 1
+    return limited
 
 
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
                 perturbation=None, perturb_rng: np.random.Generator | None = None,
-                action_history: int | None = None) -> dict:
+                action_history: int | None = None, pacer: Pacer | None = None,
+                max_observation_age: float | None = None, log: dict | None = None) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a real-robot driver with the same
-    ``reset``/``command_targets``/``finger_ctrl``/``step_targets``/``target``);
-    client: ``daddpg_jax.deploy.server.PolicyClient``; safety:
-    ``daddpg_jax.deploy.safety.SafetyFilter``.
-    An answer that is missing, malformed or later than ``deadline_s`` (default: the safety
-    limits' deadline) is a missed deadline: both arms hold (``stops`` counts them). With a
-    ``monitor`` (``OutageMonitor``), each period is reported to it after the hold has been
-    applied; its ``ServiceOutage`` ends the episode, with this episode's partial summary in
-    ``.episode``. ``episode``: the episode's index, for the reports.
-    perturbation: a ``mjx_envs.perturb.Perturbation`` (sim-to-sim: the trainer's observation
-    noise, dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to
-    what the policy sees and to the actions it sends; the safety layer sees the true state.
-    action_history: the policy's ``action_history`` k (its last k actions end each arm's
-    observation, `mjx_envs.observation.with_action_history`); None = ``env.config``'s (0
-    without one). The history holds the actions the service answered, before any latency; a
-    held period (missed deadline) counts as the zero action.
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a driver with its ``reset`` /
+    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``); client:
+    ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
+    ``deadline_s``, default the limits' deadline), or one to an observation older than
+    ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
+    sets one, else when the loop read it) is a missed deadline: both arms hold (``stops``).
+    monitor: an ``OutageMonitor`` told of each period after the hold; its ``ServiceOutage``
+    ends the episode, with the partial summary in ``.episode``. episode: the index, for reports.
+    pacer: a ``Pacer`` runs one step per control period (None: as fast as the env steps).
+    log: a dict that receives the episode's log (goal, initial state, and per step the
+    observation, its age, the answer, the safety decision, the targets sent and the times);
+    ``replay_episode`` replays it in the simulator.
+    perturbation: a ``mjx_envs.perturb.Perturbation`` (the trainer's observation noise,
+    dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to what the
+    policy sees and sends; the safety layer sees the true state. action_history: the policy's k
+    (``mjx_envs.observation.with_action_history``; None = ``env.config``'s, 0 without one): the
+    actions the service answered, before any latency; a held period counts as zero.
     Returns the summary.
     """
     from mjx_envs import observation as obs_lib
@@ -315,7 +407,10 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
-    seen, pcarry = res.observation, None
+    log = {} if log is None else log
+    log.update(episode=episode, goal=np.asarray(res.desired_goal, float).tolist(),
+               qpos=np.asarray(getattr(env, "_qpos", []), float).tolist(), steps=[])
+    seen, pcarry, sampler = res.observation, None, None
     if perturbation is not None and perturbation.active:
         from mjx_envs import perturb, rules
 
@@ -323,22 +418,26 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         perturb_rng = np.random.default_rng() if perturb_rng is None else perturb_rng
         seen, pcarry = perturb.start(np, sampler, perturb_rng, perturbation, res.observation)
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
-    stops, rtts, errors = 0, [], []
+    stops, stale, rtts, errors, step_ms = 0, 0, [], [], []
     clear_min = res.arm_clearance
+    if pacer is not None:
+        pacer.restart()
     for step in range(env.episode_length):
-        t0 = clock()
+        tick = pacer.wait() if pacer is not None else clock()
+        captured = getattr(res, "captured_at", None)
+        captured = clock() if captured is None else float(captured)
         asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen
+        t0 = clock()
         answer, info = client.act(asked, res.desired_goal)
-        rtt = clock() - t0
+        t_answer = clock()
+        rtt, age = t_answer - t0, t_answer - captured
         rtts.append(rtt * 1e3)
-        action = None if answer is None else safety.validate_action(answer)
-        missed = action is None or rtt > deadline
-        if missed:
-            late = action is not None
-            why = (f"late answer ({rtt * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)" if late
-                   else info.get("error") or "malformed answer")
+        action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
+                                     max_observation_age)
+        if why is not None:
+            stale += reason == "stale"
             errors.append(why)
-            decision = safety.hold(env.target, reason="late" if late else "stop")
+            decision = safety.hold(env.target, reason=reason)
             stops += 1
             chosen = np.zeros(2 * obs_lib.ARM_ACTION_SIZE, np.float32)
         else:
@@ -348,26 +447,49 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             proposed, ctrl = env.command_targets(action)
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
+            ctrl = _limit_fingers(safety, ctrl, decision)
         if k_hist:
             hist = obs_lib.push_action(np, hist, chosen)
+        _log_step(log["steps"], tick, age, seen, res.desired_goal, answer, info, decision, ctrl,
+                  why)
         res = env.step_targets(decision.target, ctrl)
+        step_ms.append((clock() - tick) * 1e3)
+        log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
         seen = res.observation
         if pcarry is not None and perturbation.observes:
             seen, pcarry = perturb.observe(np, sampler, perturb_rng, perturbation, pcarry,
                                            res.observation)
         clear_min = min(clear_min, res.arm_clearance)
-        if monitor is None:
-            continue
-        if not missed:
-            monitor.answered()
-            continue
         try:
-            monitor.missed_deadline(why, sent_at=t0,
-                                    where=f"episode {episode + 1}, step {step + 1}")
+            _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")
         except ServiceOutage as e:
-            e.episode = _episode_summary(res, stops, errors, clear_min, rtts, complete=False)
+            e.episode = log["summary"] = _episode_summary(
+                res, stops, errors, clear_min, rtts, complete=False, stale=stale,
+                step_ms=step_ms)
             raise
-    return _episode_summary(res, stops, errors, clear_min, rtts)
+    log["summary"] = _episode_summary(res, stops, errors, clear_min, rtts, stale=stale,
+                                      step_ms=step_ms)
+    return log["summary"]
+
+
+def replay_episode(env, log: dict):
+    """Replays an episode's log (``run_episode(..., log=...)``) in the simulator ``env``: the
+    same goal and initial state, then the logged targets and finger commands step by step.
+    Returns the final ``StepResult`` (compare its ``goal_distance`` with the log's
+    ``summary['final_distance']``)."""
+    qpos = log.get("qpos") or None
+    res = env.reset(goal=np.asarray(log["goal"], np.float32),
+                    qpos=None if qpos is None else np.asarray(qpos, np.float32))
+    for st in log["steps"]:
+        res = env.step_targets(np.asarray(st["target"], np.float32),
+                               np.asarray(st["finger_ctrl"], np.float32))
+    return res
+
+
+def _pooled(eps, key, fn):
+    """``fn`` over the lists ``key`` of every episode pooled (None when there are none)."""
+    vals = [x for e in eps for x in e.get(key, ())]
+    return round(float(fn(vals)), 3) if vals else None
 
 
 def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
@@ -383,14 +505,19 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
     counted = [e for e in eps if e["stops"] == 0]
 
     def stat(fn, key, among):
-        return float(fn([e[key] for e in among])) if among else None
+        vals = [e[key] for e in among if key in e]
+        return float(fn(vals)) if vals else None
 
+    n_ok = sum(e["success"] for e in counted)
     return dict(episodes=len(counted), episodes_run=len(eps),
                 excluded_episodes=len(eps) - len(counted),
-                success_rate=(sum(e["success"] for e in counted) / len(counted)
-                              if counted else None),
+                success_rate=(n_ok / len(counted) if counted else None),
+                success_ci95=list(wilson_interval(n_ok, len(counted))) if counted else None,
                 mean_final_distance=stat(np.mean, "final_distance", counted),
                 stops=int(sum(e["stops"] for e in eps)),
+                stale=int(sum(e.get("stale", 0) for e in eps)),
+                step_ms_p99=_pooled(eps, "step_ms", lambda x: np.percentile(x, 99)),
+                step_ms_max=_pooled(eps, "step_ms", np.max),
                 outages=0 if monitor is None else monitor.outages,
                 longest_outage_s=None if monitor is None else round(monitor.longest_s, 3),
                 safety_counts=dict(safety_counts or {}),
@@ -401,14 +528,51 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
                 aborted=aborted)
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate (n > 0)."""
+    p = successes / n
+    den = 1.0 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return round(float(max(0.0, mid - half)), 4), round(float(min(1.0, mid + half)), 4)
+
+
+def format_summary(out: Mapping) -> str:
+    """A short human-readable summary of a run (``run_episodes``' result)."""
+    lines = []
+    if out.get("success_rate") is None:
+        lines.append(f"success: no episode counted ({out['episodes_run']} run)")
+    else:
+        lo, hi = out["success_ci95"]
+        lines.append(f"success: {out['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f}) over "
+                     f"{out['episodes']} episodes; {out['excluded_episodes']} excluded for a "
+                     f"missed deadline")
+    lines.append(f"deadlines missed: {out['stops']} ({out.get('stale', 0)} stale "
+                 f"observations) in {out['outages']} outage(s)")
+    counts = out.get("safety_counts") or {}
+    rules = ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "none"
+    lines.append(f"safety interventions (control periods): {rules}")
+    if out.get("paced"):
+        lines.append(f"paced at {out['control_period_ms']:g} ms: {out['overruns']} overrun(s); "
+                     f"step time p99 {out['step_ms_p99']:.1f} ms, max {out['step_ms_max']:.1f} ms")
+    else:
+        lines.append("unpaced (--fast): as fast as the simulator steps")
+    if out.get("aborted"):
+        lines.append(f"aborted: {out['aborted']['reason']}")
+    return "\n".join(lines)
+
+
 def run_episodes(env, client, safety, episodes: int, seed: int = 0,
                  deadline_s: float | None = None, monitor: OutageMonitor | None = None,
-                 perturbation=None) -> dict:
+                 perturbation=None, pacer: Pacer | None = None,
+                 max_observation_age: float | None = None, on_log=None) -> dict:
     """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; the summary of
     ``summarize_episodes`` (success rate over the episodes without a missed deadline, ...).
     perturbation: see ``run_episode``; its draws come from ``np.random.default_rng([seed,
     PERTURB_STREAM])``, so the goals are those of the unperturbed run.
 
+    pacer, max_observation_age: see ``run_episode``; on_log: called with each episode's log
+    (``run_episode``'s ``log``) when the episode ends, aborted ones included.
     monitor: ``OutageMonitor`` (default: ``MAX_MISSED`` / ``MAX_OUTAGE_S``, silent). When it
     gives up, the run stops there and ``aborted`` holds ``reason``, ``episode`` (1-based),
     ``missed``, ``outage_s`` and ``last_error``; otherwise ``aborted`` is None.
@@ -418,14 +582,23 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
     monitor = OutageMonitor() if monitor is None else monitor
     eps, aborted = [], None
     for k in range(int(episodes)):
+        log = {} if on_log is not None else None
         try:
             eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s,
                                    monitor=monitor, episode=k, perturbation=perturbation,
-                                   perturb_rng=perturb_rng))
+                                   perturb_rng=perturb_rng, pacer=pacer,
+                                   max_observation_age=max_observation_age, log=log))
         except ServiceOutage as e:
             if e.episode is not None:
                 eps.append(e.episode)
             aborted = dict(reason=str(e), episode=k + 1, missed=e.missed,
                            outage_s=round(e.outage_s, 3), last_error=e.last_error)
             break
-    return summarize_episodes(eps, safety.counts, monitor, aborted)
+        finally:
+            if on_log is not None and log:
+                on_log(log)
+    out = summarize_episodes(eps, safety.counts, monitor, aborted)
+    out.update(paced=pacer is not None,
+               overruns=None if pacer is None else pacer.overruns,
+               control_period_ms=None if pacer is None else pacer.period * 1e3)
+    return out

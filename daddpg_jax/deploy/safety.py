@@ -49,6 +49,32 @@ class SafetyLimits:
     finger_low: float = 0.0  # finger opening range, m
     finger_high: float = _DEFAULTS.finger_stroke
 
+    def __post_init__(self):
+        """Refuses limits that would switch a rule off or turn it around: NaN/inf anywhere, a
+        step or deadline <= 0, an empty or non-finite box, a finger range outside 0 <= low <=
+        high (ValueError, one line)."""
+        low = np.asarray(self.workspace_low, np.float32)
+        high = np.asarray(self.workspace_high, np.float32)
+        if low.shape != (NUM_ARMS, 3) or high.shape != (NUM_ARMS, 3):
+            raise ValueError(f"workspace boxes must be [{NUM_ARMS}, 3], got {list(low.shape)} "
+                             f"and {list(high.shape)}")
+        if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
+            raise ValueError("workspace boxes must be finite")
+        if np.any(low >= high):
+            raise ValueError("workspace boxes must be non-empty (low < high on every axis)")
+        for name in ("max_step", "deadline_s"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if not math.isfinite(float(self.min_clearance)):
+            raise ValueError(f"min_clearance must be finite, got {self.min_clearance!r}")
+        fl, fh = float(self.finger_low), float(self.finger_high)
+        if not (math.isfinite(fl) and math.isfinite(fh) and 0.0 <= fl <= fh):
+            raise ValueError(f"finger range must be finite with 0 <= low <= high, got "
+                             f"[{fl!r}, {fh!r}]")
+        object.__setattr__(self, "workspace_low", low)
+        object.__setattr__(self, "workspace_high", high)
+
     @classmethod
     def from_env(cls, env: Mapping[str, Any], max_speed: float | None = None,
                  min_clearance: float | None = None, deadline_s: float | None = None,
@@ -99,14 +125,29 @@ class SafetyFilter:
 
     @staticmethod
     def validate_action(action, size: int = 8) -> np.ndarray | None:
-        """The action as float32 [size], or None when it is malformed (shape, type, NaN/inf)."""
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
+        """The action as float32 [size], or None unless it is exactly ``size`` finite numbers:
+        a list or tuple of JSON numbers (int or float, not bool, not strings) or a real
+        floating/integer NumPy array, each finite in float32 (``1e300`` is not)."""
+        if isinstance(action, np.ndarray):
+            if action.dtype.kind not in "fiu" or action.shape != (size,):
+                return None
+            a = action.astype(np.float64)
+        elif isinstance(action, (list, tuple)):
+            if len(action) != size or any(
+                    isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.number))
+                    or isinstance(x, (complex, np.complexfloating)) for x in action):
+                return None
+            try:
+                a = np.array([float(x) for x in action], np.float64)
+            except (OverflowError, TypeError, ValueError):  # ints beyond float range
+                return None
+        else:
             return None
-        if a.shape != (size,) or not np.all(np.isfinite(a)):
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = a.astype(np.float32)
+        if not np.all(np.isfinite(out)):
             return None
-        return a.astype(np.float32)
+        return out
 
     def cap_speed(self, current, proposed) -> tuple[np.ndarray, bool]:
         d = np.asarray(proposed, np.float32) - np.asarray(current, np.float32)

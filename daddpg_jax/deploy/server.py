@@ -1,55 +1,67 @@
 """Policy service: the decision service the robot queries every control period (HTTP + JSON).
 
-Standard library only (``http.server.ThreadingHTTPServer``) plus NumPy and
-``daddpg_jax.deploy.policy``: no web framework to install on the robot computer, one thread per
-connection, persistent (HTTP/1.1 keep-alive) connections. Loopback (127.0.0.1) by default.
+HTTP/1.1 framing by ``h11`` (a small pure-Python HTTP/1.1 implementation, no I/O of its own),
+standard-library sockets (``socketserver``: one thread per connection, persistent keep-alive
+connections), NumPy and ``daddpg_jax.deploy.policy``. Loopback (127.0.0.1) by default.
 
 Endpoints
     POST /act    {"observation": [[25 floats], [25 floats]], "desired_goal": [[3], [3]],
                   "id": optional int or short string, echoed back}
                  -> 200 {"action": [8 floats], "per_arm": [[4], [4]], "latency_ms": float,
-                         "id": ...}
+                         "id": ...}    (latency_ms: the service's own compute time)
     GET /health  -> 200 {"status": "ok", "requests": n, "errors": n, "timeouts": n,
-                         "refused": n, "connections": n, "uptime_s": s}
-    GET /info    -> 200 task, algo, format version, observation layout, env settings, ...
+                         "refused": n, "nonfinite": n, "connections": n, "uptime_s": s}
+    GET /info    -> 200 task, algo, format version, observation layout, env settings,
+                    policy_sha256 (of the policy file's bytes, as ``sha256sum`` prints it), ...
 
-Malformed requests get a 4xx and ``{"error": "...", "status": code}``: 400 bad JSON, missing or
-unknown fields, wrong types or shapes, NaN/inf, nesting deeper than ``max_depth``; 404 unknown
-path; 405 wrong method; 408 the request line, headers and body not received within
-``request_timeout`` seconds of the request's first byte; 411 no Content-Length; 413 body over
-``max_body`` bytes (answered from the header; see below); 415 a Content-Type other than JSON;
-503 ``max_connections`` connections already open. An unexpected exception answers 500; the
-server keeps serving in every case.
+Errors get ``{"error": "...", "status": code}``: 400 malformed request line or headers,
+ambiguous framing (two different Content-Lengths, Content-Length with Transfer-Encoding, a
+malformed length, a body on GET), a body that is not strict UTF-8 JSON (no byte-order mark, no
+NaN/Infinity), missing or unknown fields, wrong types or shapes, numbers beyond float32,
+nesting deeper than ``max_depth``; 401 a token is required (``token``) and the request's
+``X-Policy-Token`` header is missing or wrong; 404 unknown path; 405 wrong method for the path;
+408 the request line, headers and body not received within ``request_timeout`` seconds of the
+request's first byte; 411 no Content-Length, or a chunked body; 413 body over ``max_body``
+bytes (answered from the header; see below); 415 a Content-Type other than JSON; 431 request
+line and headers over 64 KiB; 500 an unexpected exception, or a policy that produced a
+non-finite action (never sent); 501 a method other than GET and POST; 503 ``max_connections``
+connections already open. An answer to a request whose framing or headers are refused (400
+framing, 401, 408, 411, 413, 431, 500, 501, 503) closes the connection (``Connection:
+close``); a well-framed request with a bad body, path, method or Content-Type (400, 404, 405,
+415) keeps it open. The server keeps serving in every case.
 
 Limits (``ServiceLimits``): every read of a request is bounded by the request's deadline, so a
 client that trickles bytes holds its thread for ``request_timeout`` seconds at most; a
 keep-alive connection idle for ``idle_timeout`` seconds between requests is closed; a
 connection beyond ``max_connections`` gets 503 from a small pool of refusal threads instead of
-a handler thread. After any answer that closes the connection (413, 408, 411, 503, ...) the
-server closes with lingering: it sends the answer, shuts down its sending side, and reads and
-discards what the client still sends (at most ``max_drain`` bytes, until the request's deadline
-or ``LINGER_S`` seconds, whichever is later) before closing, so that a client that sends its
-whole body before reading (``http.client``, ``requests``) receives the 413 instead of a
-connection reset.
+a handler thread. After any answer that closes the connection the server closes with
+lingering: it sends the answer, shuts down its sending side, and reads and discards what the
+client still sends (at most ``max_drain`` bytes, until the request's deadline or ``LINGER_S``
+seconds, whichever is later) before closing, so that a client that sends its whole body before
+reading (``http.client``, ``requests``) receives the 413 instead of a connection reset.
+
+The client (``PolicyClient``, re-exported here) is in ``daddpg_jax.deploy.client``.
 """
 
 from __future__ import annotations
 
-import http.client
-import io
+import hmac
 import json
 import math
 import socket
+import socketserver
+import sys
 import threading
 import time
 from dataclasses import dataclass
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
+import h11
 import numpy as np
 
 from daddpg_jax.deploy import NumpyPolicy
+from daddpg_jax.deploy.client import TOKEN_HEADER, PolicyClient  # noqa: F401 - re-exported
 
 MAX_BODY = 64 * 1024
 MAX_DEPTH = 8
@@ -58,8 +70,12 @@ IDLE_TIMEOUT_S = 10.0
 MAX_CONNECTIONS = 32
 MAX_DRAIN = 64 * 1024 * 1024
 LINGER_S = 0.5  # least time a closing connection is drained after its answer
+ERROR_PAUSE_S = 0.01  # after an error answer, a kept connection's next request waits this long
 REFUSAL_THREADS = 8  # connections over the cap answered 503 at once; beyond, closed unanswered
 REQUEST_FIELDS = ("observation", "desired_goal", "id")
+MAX_HEAD = 64 * 1024  # request line + headers, bytes (h11's limit; more: 431)
+SERVER_NAME = "daddpg-policy/2"
+MAX_ID_CHARS = 64
 
 
 @dataclass(frozen=True)
@@ -69,7 +85,10 @@ class ServiceLimits:
     max_body: largest request body, bytes; max_depth: deepest JSON nesting; request_timeout: s
     from a request's first byte to the end of its body; idle_timeout: s a keep-alive connection
     may wait between requests; max_connections: open connections served at once; max_drain:
-    bytes read and discarded from a connection closed after an error.
+    bytes read and discarded from a connection closed after an error; error_pause: s a
+    connection kept open after an error answer (400, 404, 405, 415) waits before its next
+    request is read, so that a client flooding malformed requests cannot take the
+    interpreter from the others (an honest client rarely gets an error).
     """
 
     max_body: int = MAX_BODY
@@ -78,6 +97,7 @@ class ServiceLimits:
     idle_timeout: float = IDLE_TIMEOUT_S
     max_connections: int = MAX_CONNECTIONS
     max_drain: int = MAX_DRAIN
+    error_pause: float = ERROR_PAUSE_S
 
     def __post_init__(self):
         for name in ("max_body", "max_depth", "max_connections"):
@@ -89,42 +109,68 @@ class ServiceLimits:
                 raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
         if int(self.max_drain) < 0:
             raise ValueError(f"max_drain must be >= 0, got {self.max_drain!r}")
+        if not (0.0 <= float(self.error_pause) <= 10.0):
+            raise ValueError(f"error_pause must be in [0, 10] s, got {self.error_pause!r}")
 
 
 class RequestError(Exception):
-    def __init__(self, status: int, message: str, close: bool = False):
+    def __init__(self, status: int, message: str, close: bool = False, extra=()):
         super().__init__(message)
         self.status = status
         self.message = message
         self.close = close
+        self.extra = tuple(extra)  # more answer headers: (name, value) pairs
 
 
 class _DeadlinePassed(Exception):
     """The request's deadline passed before all of it arrived."""
 
 
+class _ClientGone(Exception):
+    """The client closed the connection, or it stayed idle past ``idle_timeout``."""
+
+
+_DROP = bytes(c for c in range(256) if c not in b'"[]{}')
+_TO_STEP = bytes.maketrans(b"[{]}", b"\x01\x01\xff\xff")  # +1 / -1 as int8
+
+
 def json_depth_exceeds(body: bytes, max_depth: int) -> bool:
-    """True when arrays/objects nest deeper than ``max_depth`` (strings are skipped)."""
+    """True when arrays/objects nest deeper than ``max_depth`` (brackets inside strings do not
+    count). In C and NumPy, no per-byte Python: escapes go first (escaped backslashes, then
+    escaped quotes, left to right as JSON reads them), then every byte but quotes and brackets
+    (``bytes.translate``); the parts between quotes are strings and are dropped, and the depth
+    is a cumulative sum of +1/-1. Well under a millisecond for a 64 KiB body, whatever it
+    holds."""
     if body.count(b"[") + body.count(b"{") <= max_depth:
         return False
-    depth, in_str, esc = 0, False, False
-    for ch in body:
-        if in_str:
-            if esc:
-                esc = False
-            elif ch == 0x5C:  # backslash
-                esc = True
-            elif ch == 0x22:  # quote
-                in_str = False
-        elif ch == 0x22:
-            in_str = True
-        elif ch in (0x5B, 0x7B):  # [ {
-            depth += 1
-            if depth > max_depth:
-                return True
-        elif ch in (0x5D, 0x7D):
-            depth -= 1
-    return False
+    if b"\\" in body:
+        body = body.replace(b"\\\\", b"").replace(b'\\"', b"")
+    s = body.translate(None, _DROP)
+    if b'"' in s:
+        s = b"".join(s.split(b'"')[::2])
+    if len(s) <= max_depth:
+        return False
+    steps = np.frombuffer(s.translate(_TO_STEP), np.int8)
+    return bool(np.cumsum(steps, dtype=np.int32).max() > max_depth)
+
+
+def decode_body(body: bytes, max_depth: int) -> Any:
+    """A request body as strict JSON: UTF-8 without a byte-order mark, no NaN/Infinity, nesting
+    at most ``max_depth``; RequestError 400 otherwise."""
+    if body[:3] == b"\xef\xbb\xbf":
+        raise RequestError(400, "invalid JSON: a byte-order mark is not allowed")
+    try:
+        text = body.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise RequestError(400, f"body is not UTF-8: {e}") from None
+    if json_depth_exceeds(body, max_depth):
+        raise RequestError(400, f"JSON nested deeper than {max_depth} levels")
+    try:
+        return json.loads(text, parse_constant=_reject_constant)
+    except RecursionError:
+        raise RequestError(400, "JSON nested too deeply") from None
+    except ValueError as e:
+        raise RequestError(400, f"invalid JSON: {e}") from None
 
 
 def _reject_constant(name):
@@ -151,7 +197,10 @@ def parse_matrix(name: str, value: Any, rows: int, cols: int) -> np.ndarray:
             if isinstance(x, int) and abs(x) > 1e300:
                 raise RequestError(400, f"'{name}'[{i}][{j}] is out of range")
             out[i, j] = x
-    return out.astype(np.float32)
+    out32 = out.astype(np.float32)
+    if not np.all(np.isfinite(out32)):
+        raise RequestError(400, f"'{name}' holds a number beyond the float32 range")
+    return out32
 
 
 def check_fields(req: dict) -> None:
@@ -201,268 +250,301 @@ def _linger(sock: socket.socket, until: float, budget: int) -> int:
     return got
 
 
-class _DeadlineReader(io.RawIOBase):
-    """The connection's reads: ``idle_timeout`` per read between requests; within a request
-    (``deadline`` set, monotonic s) every read ends by the deadline, else ``_DeadlinePassed``."""
-
-    def __init__(self, sock: socket.socket, idle_timeout: float):
-        super().__init__()
-        self._sock = sock
-        self.idle_timeout = idle_timeout
-        self.deadline: float | None = None
-
-    def readable(self) -> bool:
-        return True
-
-    def readinto(self, buf) -> int:
-        if self.deadline is None:
-            self._sock.settimeout(self.idle_timeout)
-            return self._sock.recv_into(buf)
-        left = self.deadline - time.monotonic()
-        if left <= 0:
-            raise _DeadlinePassed
-        self._sock.settimeout(left)
-        try:
-            return self._sock.recv_into(buf)
-        except TimeoutError:
-            raise _DeadlinePassed from None
+def _phrase(status: int) -> str:
+    try:
+        return HTTPStatus(status).phrase
+    except ValueError:
+        return "Error"
 
 
-class _Handler(BaseHTTPRequestHandler):
-    protocol_version = "HTTP/1.1"
-    server_version = "daddpg-policy/1"
+def _answer_bytes(status: int, body: bytes, close: bool, extra=()) -> bytes:
+    """An answer written without h11's state machine (answers that close the connection
+    after a request h11 could not parse)."""
+    head = [f"HTTP/1.1 {status} {_phrase(status)}", f"Server: {SERVER_NAME}",
+            "Content-Type: application/json", f"Content-Length: {len(body)}", *extra]
+    if close:
+        head.append("Connection: close")
+    return ("\r\n".join(head) + "\r\n\r\n").encode() + body
+
+
+class _Handler(socketserver.BaseRequestHandler):
+    """One connection: requests parsed by ``h11``, each bounded by its deadline (from its first
+    byte to the end of its body), idle waits between requests by ``idle_timeout``."""
 
     # -- plumbing -----------------------------------------------------------------------------
 
     def setup(self):
-        self.timeout = self.server.limits.idle_timeout
-        super().setup()
-        # headers and body go out in two small writes: without TCP_NODELAY the second waits for
-        # the client's delayed ACK (~40 ms per request on Linux)
-        self.connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.rfile.close()  # the makefile() reader, replaced by one that keeps the deadline
-        self._reader = _DeadlineReader(self.connection, self.server.limits.idle_timeout)
-        self.rfile = io.BufferedReader(self._reader, 65536)
-        self._deadline: float | None = None
-        self._linger = False
+        self.sock: socket.socket = self.request
+        # an answer in one write, but the client's delayed ACK would still hold the next one
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.limits: ServiceLimits = self.server.limits
+        self.conn = h11.Connection(h11.SERVER, max_incomplete_event_size=MAX_HEAD)
+        self.deadline: float | None = None
+        self.linger = False
+        self.what = "-"  # the current request's method and target, for --verbose
+
+    def handle(self):
+        try:
+            while self._one_request():
+                pass
+        except (_ClientGone, OSError):
+            pass
 
     def finish(self):
-        super().finish()
-        if self._linger:
-            until = max(self._deadline or 0.0, time.monotonic() + LINGER_S)
-            _linger(self.connection, until, self.server.limits.max_drain)
+        if self.linger:
+            until = max(self.deadline or 0.0, time.monotonic() + LINGER_S)
+            _linger(self.sock, until, self.limits.max_drain)
 
-    def handle_one_request(self):
-        """``BaseHTTPRequestHandler.handle_one_request`` with the request's deadline: it starts
-        at the first byte of the request line and bounds every read of the request."""
-        self.requestline, self.request_version, self.command = "", "", ""
-        self._reader.deadline = None
-        try:
-            if not self.rfile.peek(1):  # idle wait between requests; b"": the client closed
-                self.close_connection = True
-                return
-            self._deadline = time.monotonic() + self.server.limits.request_timeout
-            self._reader.deadline = self._deadline
-            self.raw_requestline = self.rfile.readline(65537)
-            if len(self.raw_requestline) > 65536:
-                self.send_error(HTTPStatus.REQUEST_URI_TOO_LONG)
-                return
-            if not self.raw_requestline:
-                self.close_connection = True
-                return
-            if not self.parse_request():  # an error has been sent
-                return
-            method = getattr(self, "do_" + self.command, None)
-            if method is None:
-                self.send_error(HTTPStatus.NOT_IMPLEMENTED,
-                                f"Unsupported method ({self.command!r})")
-                return
-            method()
-            self.wfile.flush()
-        except _DeadlinePassed:
-            self._timed_out()
-        except (TimeoutError, ConnectionError):  # idle keep-alive connection, or client gone
-            self.close_connection = True
-
-    def log_message(self, fmt, *args):  # quiet unless asked
-        if self.server.verbose:
-            super().log_message(fmt, *args)
-
-    def _send(self, status: int, payload: dict, close: bool = False):
-        body = json.dumps(payload, separators=(",", ":")).encode()
-        self.connection.settimeout(self.server.limits.idle_timeout)  # writes
-        self.send_response(status)
-        self.send_header("Content-Type", "application/json")
-        self.send_header("Content-Length", str(len(body)))
-        if close:
-            self.send_header("Connection", "close")
-            self.close_connection = True
-            self._linger = True
-        self.end_headers()
-        self.wfile.write(body)
-
-    def _error(self, status: int, message: str, close: bool = False):
-        self.server.count("errors")
-        self._send(status, {"error": message, "status": status}, close=close)
-
-    def send_error(self, code, message=None, explain=None):
-        """http.server's own errors (bad request line, unsupported method, header limits) as
-        JSON too."""
-        try:
-            text = message or HTTPStatus(code).phrase
-        except ValueError:
-            text = message or "error"
-        try:
-            self._error(int(code), str(text), close=True)
-        except OSError:
-            self.close_connection = True
-
-    def _timed_out(self):
-        self.server.count("timeouts")
-        self.log_message("request timed out after %s s", self.server.limits.request_timeout)
-        try:
-            self._error(408, f"request not received within {self.server.limits.request_timeout} "
-                             f"s of its first byte", close=True)
-        except OSError:
-            self.close_connection = True
-
-    def handle_expect_100(self):
-        """``Expect: 100-continue`` with a body over the limit: the final 413 at once, so the
-        client never sends the body."""
-        n = self._declared_length()
-        if n is not None and n > self.server.limits.max_body:
-            self.server.count("requests")
-            self.send_error(413, self._too_large(n))
-            return False
-        self.connection.settimeout(self.server.limits.idle_timeout)
-        return super().handle_expect_100()
-
-    def _guard(self, fn):
-        try:
-            fn()
-        except RequestError as e:
+    def _receive(self):
+        """Feeds the next bytes of the connection to h11, within the request's deadline (or
+        the idle timeout before a request's first byte)."""
+        if self.deadline is None:
+            self.sock.settimeout(self.limits.idle_timeout)
             try:
-                self._error(e.status, e.message, close=e.close)
-            except OSError:  # the client is gone (e.g. it sent a short body and closed)
-                self.close_connection = True
-        except _DeadlinePassed:
-            self._timed_out()
-        except (ConnectionError, TimeoutError):
-            self.close_connection = True
-        except Exception as e:  # noqa: BLE001 - the service must survive any request
-            try:
-                self._error(500, f"internal error: {type(e).__name__}: {e}", close=True)
-            except OSError:
-                self.close_connection = True
-
-    # -- routes -------------------------------------------------------------------------------
-
-    def do_GET(self):
-        self.server.count("requests")
-        self._guard(self._get)
-
-    def _get(self):
-        path = self.path.split("?", 1)[0]
-        if path == "/health":
-            self._send(200, self.server.health())
-        elif path == "/info":
-            self._send(200, self.server.policy.info())
-        elif path == "/act":
-            raise RequestError(405, "use POST for /act")
+                data = self.sock.recv(65536)
+            except (TimeoutError, ConnectionError):
+                raise _ClientGone from None
+            if not data:
+                raise _ClientGone
+            self.deadline = time.monotonic() + self.limits.request_timeout
         else:
-            raise RequestError(404, f"unknown path {path!r}; endpoints: POST /act, GET /health, "
-                                    f"GET /info")
+            left = self.deadline - time.monotonic()
+            if left <= 0:
+                raise _DeadlinePassed
+            self.sock.settimeout(left)
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                raise _DeadlinePassed from None
+        self.conn.receive_data(data)
 
-    def do_POST(self):
-        self.server.count("requests")
-        self._guard(self._post)
+    def _event(self):
+        while True:
+            ev = self.conn.next_event()
+            if ev is not h11.NEED_DATA:
+                return ev
+            if self.conn.they_are_waiting_for_100_continue:
+                self._write(self.conn.send(h11.InformationalResponse(status_code=100,
+                                                                      headers=[])))
+            self._receive()
 
-    def _declared_length(self) -> int | None:
+    def _write(self, data: bytes):
+        self.sock.settimeout(self.limits.idle_timeout)
+        self.sock.sendall(data)
+
+    def _log(self, status: int, what: str):
+        if self.server.verbose:
+            print(f"{self.client_address[0]} {what} {status}", file=sys.stderr, flush=True)
+
+    def _send(self, status: int, payload: dict, close: bool = False, extra=()):
+        body = json.dumps(payload, separators=(",", ":")).encode()
+        close = close or self.conn.their_state is not h11.DONE
+        headers = [("Server", SERVER_NAME), ("Content-Type", "application/json"),
+                   ("Content-Length", str(len(body))), *extra]
+        if close:
+            headers.append(("Connection", "close"))
         try:
-            return int(self.headers.get("Content-Length", ""))
-        except ValueError:
-            return None
+            data = (self.conn.send(h11.Response(status_code=status, headers=headers,
+                                                reason=_phrase(status)))
+                    + self.conn.send(h11.Data(data=body)) + self.conn.send(h11.EndOfMessage()))
+        except h11.LocalProtocolError:  # h11 gave up on the request: write the answer as is
+            data = _answer_bytes(status, body, True, [f"{k}: {v}" for k, v in extra])
+            close = True
+        self._write(data)
+        self._log(status, self.what)
+        if close:
+            self.linger = True
+        return close
 
-    def _too_large(self, n: int) -> str:
-        return f"body of {n} bytes exceeds the limit of {self.server.limits.max_body} bytes"
+    def _error(self, status: int, message: str, close: bool = False, extra=()) -> bool:
+        self.server.count("errors")
+        self.errored = True
+        return self._send(status, {"error": message, "status": status}, close=close,
+                          extra=extra)
+
+    # -- one request --------------------------------------------------------------------------
+
+    def _one_request(self) -> bool:
+        """Reads, answers and finishes one request; True when the connection stays open."""
+        self.deadline, self.what, self.errored = None, "-", False
+        try:
+            try:
+                ev = self._event()
+            except h11.RemoteProtocolError as e:  # malformed request line or headers
+                if self.deadline is None:
+                    raise _ClientGone from None
+                self.server.count("requests")
+                status = e.error_status_hint if e.error_status_hint in (400, 431, 501) else 400
+                return not self._error(status, f"malformed request: {str(e)[:200]}", close=True)
+            if isinstance(ev, h11.ConnectionClosed):
+                return False
+            self.server.count("requests")
+            close = self._route(ev)
+        except _DeadlinePassed:
+            self.server.count("timeouts")
+            try:
+                self._error(408, f"request not received within {self.limits.request_timeout} "
+                                 f"s of its first byte", close=True)
+            except OSError:
+                pass
+            return False
+        if close or self.conn.our_state is not h11.DONE or self.conn.their_state is not h11.DONE:
+            self.linger = self.linger or close
+            return False
+        self.conn.start_next_cycle()
+        if self.errored and self.limits.error_pause > 0:
+            time.sleep(self.limits.error_pause)
+        return True
+
+    def _route(self, req: h11.Request) -> bool:
+        """Answers ``req``; True when the connection must close."""
+        try:
+            return self._answer(req)
+        except RequestError as e:
+            return self._error(e.status, e.message, close=e.close, extra=e.extra)
+        except h11.RemoteProtocolError as e:  # malformed body framing
+            return self._error(400, f"malformed request: {str(e)[:200]}", close=True)
+        except (_DeadlinePassed, _ClientGone, OSError):
+            raise
+        except Exception as e:  # noqa: BLE001 - the service must survive any request
+            return self._error(500, f"internal error: {type(e).__name__}: {e}", close=True)
 
     def _read_body(self) -> bytes:
-        if self.headers.get("Transfer-Encoding"):
+        chunks, n = [], 0
+        while True:
+            try:
+                ev = self._event()
+            except _ClientGone:
+                raise RequestError(400, "body shorter than Content-Length", close=True) \
+                    from None
+            if isinstance(ev, h11.Data):
+                n += len(ev.data)
+                if n > self.limits.max_body:  # h11 holds the body to its Content-Length
+                    raise RequestError(413, self._too_large(n), close=True)
+                chunks.append(bytes(ev.data))
+            elif isinstance(ev, h11.EndOfMessage):
+                return b"".join(chunks)
+            else:  # ConnectionClosed
+                raise RequestError(400, "body shorter than Content-Length", close=True)
+
+    def _too_large(self, n: int) -> str:
+        return f"body of {n} bytes exceeds the limit of {self.limits.max_body} bytes"
+
+    def _framing(self, req: h11.Request) -> int | None:
+        """The declared body length (None: no Content-Length); RequestError for a request whose
+        framing is ambiguous or refused."""
+        lengths = [v for k, v in req.headers if k == b"content-length"]
+        chunked = any(k == b"transfer-encoding" for k, _ in req.headers)
+        if chunked and lengths:
+            raise RequestError(400, "both Content-Length and Transfer-Encoding: ambiguous "
+                                    "framing", close=True)
+        if chunked:
             raise RequestError(411, "chunked bodies are not accepted; send Content-Length",
                                close=True)
-        length = self.headers.get("Content-Length")
-        if length is None:
+        return int(lengths[0]) if lengths else None
+
+    def _check_token(self, req: h11.Request):
+        token = self.server.token
+        if token is None:
+            return
+        given = [v for k, v in req.headers if k == TOKEN_HEADER.lower().encode()]
+        if len(given) != 1 or not hmac.compare_digest(given[0], token):
+            raise RequestError(401, f"missing or wrong {TOKEN_HEADER} header", close=True)
+
+    def _answer(self, req: h11.Request) -> bool:
+        method = req.method.decode("ascii", "replace")
+        target = req.target.decode("ascii", "replace")
+        self.what = f"{method} {target[:80]}"
+        path = target.split("?", 1)[0]
+        n = self._framing(req)
+        if method not in ("GET", "POST"):
+            raise RequestError(501, f"Unsupported method ({method!r})", close=True)
+        self._check_token(req)
+        if method == "GET":
+            if n:  # a body on a method that takes none
+                raise RequestError(400, "GET requests take no body", close=True)
+            self._read_body()
+            return self._get(path)
+        if n is None:
             raise RequestError(411, "Content-Length header required", close=True)
-        n = self._declared_length()
-        if n is None or n < 0:
-            raise RequestError(400, f"bad Content-Length {length!r}", close=True)
-        if n > self.server.limits.max_body:  # answered now; the body is drained on closing
+        if n > self.limits.max_body:  # answered now; the body is drained on closing
             raise RequestError(413, self._too_large(n), close=True)
-        body = self.rfile.read(n)
-        if len(body) != n:
-            raise RequestError(400, "body shorter than Content-Length", close=True)
-        return body
-
-    def _decode(self, body: bytes) -> dict:
-        max_depth = self.server.limits.max_depth
-        if json_depth_exceeds(body, max_depth):
-            raise RequestError(400, f"JSON nested deeper than {max_depth} levels")
-        try:
-            req = json.loads(body, parse_constant=_reject_constant)
-        except RecursionError:
-            raise RequestError(400, "JSON nested too deeply") from None
-        except (ValueError, UnicodeDecodeError) as e:
-            raise RequestError(400, f"invalid JSON: {e}") from None
-        if not isinstance(req, dict):
-            raise RequestError(400, "request must be a JSON object with 'observation' and "
-                                    "'desired_goal'")
-        check_fields(req)
-        return req
-
-    def _post(self):
         body = self._read_body()  # first: an unread body would be taken for the next request
-        path = self.path.split("?", 1)[0]
+        return self._post(path, req, body)
+
+    def _get(self, path: str) -> bool:
+        if path == "/health":
+            return self._send(200, self.server.health())
+        if path == "/info":
+            return self._send(200, self.server.policy.info())
+        if path == "/act":
+            raise RequestError(405, "use POST for /act")
+        raise RequestError(404, f"unknown path {path!r}; endpoints: POST /act, GET /health, "
+                                f"GET /info")
+
+    def _post(self, path: str, req: h11.Request, body: bytes) -> bool:
         if path != "/act":
             if path in ("/health", "/info"):
                 raise RequestError(405, f"use GET for {path}")
             raise RequestError(404, f"unknown path {path!r}; endpoints: POST /act, GET /health, "
                                     f"GET /info")
-        ctype = self.headers.get("Content-Type")
-        if ctype is not None and ctype.split(";")[0].strip().lower() not in (
+        ctype = [v for k, v in req.headers if k == b"content-type"]
+        if ctype and ctype[0].decode("latin-1").split(";")[0].strip().lower() not in (
                 "application/json", "text/json"):
-            raise RequestError(415, f"Content-Type must be application/json, got {ctype!r}")
+            raise RequestError(415, f"Content-Type must be application/json, got "
+                                    f"{ctype[0].decode('latin-1')!r}")
         t0 = time.perf_counter()
-        req = self._decode(body)
         p = self.server.policy
-        obs = parse_matrix("observation", req["observation"], p.num_arms, p.obs_size)
-        goal = parse_matrix("desired_goal", req["desired_goal"], p.num_arms, p.goal_size)
-        rid = req.get("id")
+        # a request holds num_arms * (obs + goal) numbers and an id of <= 64 characters: a body
+        # with more commas cannot be one, and is refused before the JSON parser (which holds the
+        # interpreter lock while it builds every value) sees it
+        most = p.num_arms * (p.obs_size + p.goal_size) + MAX_ID_CHARS + 8
+        if body.count(b",") > most:
+            raise RequestError(400, f"more than {most} commas: not a request of this policy")
+        req_json = decode_body(body, self.limits.max_depth)
+        if not isinstance(req_json, dict):
+            raise RequestError(400, "request must be a JSON object with 'observation' and "
+                                    "'desired_goal'")
+        check_fields(req_json)
+        obs = parse_matrix("observation", req_json["observation"], p.num_arms, p.obs_size)
+        goal = parse_matrix("desired_goal", req_json["desired_goal"], p.num_arms, p.goal_size)
+        rid = req_json.get("id")
         if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (int, str))
-                                or (isinstance(rid, str) and len(rid) > 64)):
-            raise RequestError(400, "'id' must be an integer or a string of at most 64 characters")
+                                or (isinstance(rid, str) and len(rid) > MAX_ID_CHARS)
+                                or (isinstance(rid, int) and abs(rid) >= 2 ** 53)):
+            raise RequestError(400, f"'id' must be an integer (|id| < 2^53) or a string of at "
+                                    f"most {MAX_ID_CHARS} characters")
         try:
-            action = p.act(obs, goal)
+            action = np.asarray(p.act(obs, goal), np.float32)
         except ValueError as e:
             raise RequestError(400, str(e)) from None
+        if action.shape != (p.num_arms * p.arm_action,) or not np.all(np.isfinite(action)):
+            self.server.count("nonfinite")
+            raise RequestError(500, "the policy produced a non-finite or malformed action; "
+                                    "none is sent")
         out = {"action": [float(x) for x in action],
                "per_arm": action.reshape(p.num_arms, p.arm_action).tolist(),
                "latency_ms": round((time.perf_counter() - t0) * 1e3, 4)}
         if rid is not None:
             out["id"] = rid
-        self._send(200, out)
+        return self._send(200, out)
 
 
-class _Server(ThreadingHTTPServer):
+class _Server(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
     request_queue_size = 64
 
-    def __init__(self, addr, policy: NumpyPolicy, limits: ServiceLimits, verbose: bool):
+    def __init__(self, addr, policy: NumpyPolicy, limits: ServiceLimits, verbose: bool,
+                 token: bytes | None = None):
         self.policy = policy
         self.limits = limits
         self.verbose = verbose
+        self.token = token
         self.started = time.monotonic()
-        self.stats = {"requests": 0, "errors": 0, "timeouts": 0, "refused": 0}
+        self.stats = {"requests": 0, "errors": 0, "timeouts": 0, "refused": 0, "nonfinite": 0}
+        if ":" in addr[0]:
+            self.address_family = socket.AF_INET6
         self.active = 0  # connections held by handler threads
         self.refusing = 0  # connections being answered 503
         self._stats_lock = threading.Lock()
@@ -528,12 +610,10 @@ class _Server(ThreadingHTTPServer):
         n = self.limits.max_connections
         body = json.dumps({"error": f"over capacity: {n} connections are open (the limit); "
                                     f"retry later", "status": 503}, separators=(",", ":"))
-        head = (f"HTTP/1.1 503 Service Unavailable\r\nServer: {_Handler.server_version}\r\n"
-                f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n"
-                f"Retry-After: 1\r\nConnection: close\r\n\r\n")
+        data = _answer_bytes(503, body.encode(), True, ["Retry-After: 1"])
         try:
             request.settimeout(1.0)
-            request.sendall((head + body).encode())
+            request.sendall(data)
             _linger(request, time.monotonic() + LINGER_S, self.limits.max_body + 65536)
         except OSError:
             pass
@@ -558,7 +638,8 @@ class PolicyServer:
                  max_body: int = MAX_BODY, max_depth: int = MAX_DEPTH, verbose: bool = False,
                  request_timeout: float = REQUEST_TIMEOUT_S,
                  idle_timeout: float = IDLE_TIMEOUT_S, max_connections: int = MAX_CONNECTIONS,
-                 max_drain: int = MAX_DRAIN, limits: ServiceLimits | None = None):
+                 max_drain: int = MAX_DRAIN, limits: ServiceLimits | None = None,
+                 token: str | None = None):
         self.policy = policy
         if limits is None:
             limits = ServiceLimits(max_body=int(max_body), max_depth=int(max_depth),
@@ -567,7 +648,10 @@ class PolicyServer:
                                    max_connections=int(max_connections),
                                    max_drain=int(max_drain))
         self.limits = limits
-        self.httpd = _Server((host, int(port)), policy, limits, verbose)
+        if token is not None and not token:
+            raise ValueError("the token must not be empty")
+        self.httpd = _Server((host, int(port)), policy, limits, verbose,
+                             None if token is None else token.encode())
         self._thread: threading.Thread | None = None
 
     @property
@@ -607,96 +691,3 @@ class PolicyServer:
 
     def __exit__(self, *exc):
         self.stop()
-
-
-# -- client ------------------------------------------------------------------------------------
-
-
-class PolicyClient:
-    """Keep-alive HTTP client of the service (standard library only), for the robot side.
-
-    ``act`` never raises on service trouble: it returns ``(action or None, info)`` where
-    ``info`` holds ``rtt_ms`` and, on failure, ``error`` (timeout, connection refused, HTTP
-    error, malformed answer). A timed-out connection is dropped (its late answer must not be
-    read as the next one) and reopened on the next call. A request that finds its keep-alive
-    connection closed by the service (idle timeout, restart: reset or closed before any answer)
-    is sent once more on a new connection (``/act`` has no side effects).
-    """
-
-    def __init__(self, url: str, timeout: float = 1.0):
-        from urllib.parse import urlsplit
-
-        u = urlsplit(url if "://" in url else f"http://{url}")
-        if u.scheme != "http" or not u.hostname:
-            raise ValueError(f"policy service URL must be http://HOST:PORT, got {url!r}")
-        self.host, self.port = u.hostname, int(u.port or 80)
-        self.timeout = float(timeout)
-        self._conn = None
-        self._seq = 0
-
-    def _connection(self):
-        if self._conn is None:
-            self._conn = http.client.HTTPConnection(self.host, self.port, timeout=self.timeout)
-            self._conn.connect()
-            self._conn.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        return self._conn
-
-    def close(self):
-        if self._conn is not None:
-            self._conn.close()
-            self._conn = None
-
-    def request(self, method: str, path: str, payload: dict | None = None):
-        """(status, decoded JSON) of one request; raises OSError, ValueError or
-        http.client.HTTPException (e.g. an answer cut short) on failure."""
-        body = None if payload is None else json.dumps(payload).encode()
-        headers = {"Content-Type": "application/json"} if body is not None else {}
-        reused = self._conn is not None
-        try:
-            resp, data = self._exchange(method, path, body, headers)
-        except (BrokenPipeError, ConnectionResetError):  # RemoteDisconnected included
-            if not reused:
-                raise
-            resp, data = self._exchange(method, path, body, headers)  # a stale connection
-        if resp.getheader("Connection", "").lower() == "close":
-            self.close()
-        return resp.status, json.loads(data)
-
-    def _exchange(self, method, path, body, headers):
-        conn = self._connection()
-        try:
-            conn.request(method, path, body=body, headers=headers)
-            resp = conn.getresponse()
-            return resp, resp.read()
-        except Exception:
-            self.close()
-            raise
-
-    def info(self) -> dict:
-        status, out = self.request("GET", "/info")
-        if status != 200:
-            raise RuntimeError(f"GET /info answered {status}: {out}")
-        return out
-
-    def health(self) -> dict:
-        return self.request("GET", "/health")[1]
-
-    def act(self, observation, desired_goal):
-        self._seq += 1
-        payload = {"observation": np.asarray(observation, np.float64).tolist(),
-                   "desired_goal": np.asarray(desired_goal, np.float64).tolist(), "id": self._seq}
-        t0 = time.perf_counter()
-        try:
-            status, out = self.request("POST", "/act", payload)
-        except (OSError, ValueError, http.client.HTTPException) as e:  # timeouts: OSErrors
-            return None, {"rtt_ms": (time.perf_counter() - t0) * 1e3,
-                          "error": f"{type(e).__name__}: {e}"}
-        info = {"rtt_ms": (time.perf_counter() - t0) * 1e3}
-        if status != 200:
-            info["error"] = f"HTTP {status}: {out.get('error') if isinstance(out, dict) else out}"
-            return None, info
-        if not isinstance(out, dict) or out.get("id") != self._seq or "action" not in out:
-            info["error"] = "malformed answer"
-            return None, info
-        info["server_ms"] = out.get("latency_ms")
-        return out["action"], info
