@@ -59,6 +59,15 @@ def test_candidate_edits_change_what_they_name():
     assert np.all(m0.pair_margin[fingers] == 0.005)
 
 
+def test_combined_candidates_share_engine_sides():
+    c = ep.candidate("finger_inflate+c_plain")
+    assert c.side("mjx") == ep.CANDIDATES["finger_inflate"].side("mjx")
+    assert c.side("c") == "finger_inflate/ws_f64"
+    assert ep.candidate("c_warmstart").side("mjx") == ep.CANDIDATES["baseline"].side("mjx")
+    with pytest.raises(KeyError):
+        ep.candidate("finger_inflate+nope")
+
+
 def test_episode_keys_start_with_the_parity_tests_episodes():
     k = np.asarray(ep.episode_keys(5))
     np.testing.assert_array_equal(k[:2], np.asarray(jax.random.split(jax.random.PRNGKey(7), 2)))

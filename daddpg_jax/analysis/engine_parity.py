@@ -27,6 +27,11 @@ solver warmstart; state kept in float32 between control steps). The others use
 MJX (`MJX_MODES`): ``step`` is the backend as it is (``mjx.Data`` carries ``qacc_warmstart``);
 ``zero_ws`` zeroes the warmstart at every control step, as the C backend does.
 
+``candidate("a+b")`` combines candidates (edits in order, engine modes). `forward_gap` is the
+force-level view: one forward pass at the C engine's grasped states on both engines (finger
+contacts, object acceleration difference), which isolates collision and solver from the
+closed loop.
+
 Results are rows of plain dicts (`measure`); `experiments/engine_parity.py` runs candidates
 and writes them to a JSON store and a Markdown table (docs/TASKS.md, "MJX vs C").
 """
@@ -182,10 +187,12 @@ class Candidate:
     c_mode: str = "rollout"
     mjx_mode: str = "step"
     edit_engines: tuple[str, ...] = ("c", "mjx")  # engines whose model the edit changes
+    edit_key: str = ""  # names the edit (default: the candidate's name)
 
     def side(self, engine: str) -> str:
         """Key of what this candidate changes on one engine (equal keys, equal results)."""
-        edit = self.name if (self.edit is not None and engine in self.edit_engines) else "none"
+        edit = ((self.edit_key or self.name)
+                if (self.edit is not None and engine in self.edit_engines) else "none")
         return f"{edit}/{self.c_mode if engine == 'c' else self.mjx_mode}"
 
 
@@ -257,7 +264,8 @@ def candidate(name: str) -> Candidate:
                      _chain(*[c.edit for c in edits]) if edits else None,
                      c_modes.pop() if c_modes else "rollout",
                      mjx_modes.pop() if mjx_modes else "step",
-                     tuple(sorted(engines)) if edits else ("c", "mjx"))
+                     tuple(sorted(engines)) if edits else ("c", "mjx"),
+                     "+".join(c.name for c in edits))
 
 
 # -- backends for the measurement ---------------------------------------------------------------
