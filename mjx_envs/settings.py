@@ -17,6 +17,12 @@ import dataclasses
 from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
 
 TASKS = ("reach", "push", "pickup", "pot")
+PHYSICS_VERSION = 2
+"""Version of the simulated physics (the MJCF scenes in assets/ and how the engines step them).
+1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger boxes, finger-pot body and
+finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
+0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
+only block (pot body; bar middle and caps): the two engines agree (docs/TASKS.md, "MJX vs C")."""
 PHYSICS = ("auto", "mjx", "c")
 """physics backends: auto = MJX on an accelerator, MuJoCo's C engine on a CPU"""
 ENGINES = PHYSICS[1:]

@@ -49,7 +49,7 @@ SETTLE_STEPS = 4
 """Consecutive control steps of the grasp signal before a state is taken."""
 MIN_FINGER_FORCE = 0.5
 """Smallest normal force of each finger on the object in a kept state, newtons (a closed
-finger squeezes a neck or handle with ~3.6-4.5 N)."""
+finger squeezes a neck or handle with ~5-6 N)."""
 
 
 class GraspRecordError(RuntimeError):
