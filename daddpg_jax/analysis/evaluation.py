@@ -26,11 +26,12 @@ distance per arm at the last step, physics fault = the engine froze or diverged 
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import importlib.util
 import math
 import os
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -95,15 +96,15 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     ``best`` the run's best checkpoint (the epoch of its best test success)."""
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.running.runner import make_env, restore_readable
 
     if best and step is not None:
         raise NoCheckpointError("give a checkpoint step or best, not both")
     try:
         ckpt.check_run_dir(run_dir, step, best=best)
-    except ckpt.RunDirError as e:
+        cfg, payload = ckpt.load_config(run_dir)
+    except ckpt.RunDirError as e:   # ConfigFileError too: one line naming the file
         raise NoCheckpointError(str(e)) from None
-    cfg, payload = ckpt.load_config(run_dir)
     if physics is not None:
         cfg = cfg.replace(physics=physics)
     # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
@@ -111,7 +112,10 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     cfg = cfg.replace(buffer_size=1, n_demos=0)
     env = make_env(cfg, test_env_overrides(cfg.task, payload.get("env_overrides")))
     fns = make_train_fns(env, cfg)
-    state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False, best=best)
+    try:   # the newest readable checkpoint (a warning for each unreadable newer one)
+        state, step = restore_readable(run_dir, fns.init(), step, best=best)
+    except ckpt.CheckpointError as e:
+        raise NoCheckpointError(str(e)) from None
     return Policy(run_dir, int(step), cfg, payload, env, fns, state, best=bool(best))
 
 
@@ -148,6 +152,21 @@ def _rollout_fn(policy: Policy, n: int):
     return fn
 
 
+def check_episodes_fit(policy: Policy, fn, episodes: int) -> None:
+    """ConfigError (one line) when `episodes` run at once cannot fit in memory: the rollout's
+    outputs and the episodes' env states, sized from shapes (nothing is allocated)."""
+    import jax
+
+    from daddpg_jax.running import resources
+
+    key = jax.random.PRNGKey(0)
+    out = jax.eval_shape(fn, policy.state, key)
+    one = jax.eval_shape(policy.env.reset, key)
+    nbytes = resources.tree_bytes(out) + 2 * episodes * resources.tree_bytes(one)
+    resources.check_fits(f"evaluating {episodes:,} episodes at once", nbytes,
+                         "lower --episodes")
+
+
 def _metrics_row(run_dir: str, epoch: int) -> dict | None:
     path = os.path.join(run_dir, "metrics.csv")
     if not os.path.exists(path):
@@ -169,6 +188,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None):
         raise ValueError("episodes must be >= 1")
     seed = int(policy.cfg.eval_seed if seed is None else seed)
     fn = _rollout_fn(policy, int(episodes))
+    check_episodes_fit(policy, fn, int(episodes))
     t0 = time.perf_counter()
     tr, first, goal = jax.device_get(fn(policy.state, jax.random.PRNGKey(seed)))
     elapsed = time.perf_counter() - t0
@@ -266,21 +286,58 @@ def write_video(policy: Policy, traj: dict, path: str, n_episodes: int = 3, widt
                 height: int = 360) -> str:
     """Writes the frames of ``render_frames`` as an mp4 (imageio + imageio-ffmpeg). Without an
     mp4 writer it writes a GIF next to ``path`` instead. Returns the path written."""
+    frames = render_frames(policy, traj, n_episodes, width, height)
+    return write_frames(path, frames, int(round(1.0 / policy.env.dt)))
+
+
+def write_frames(path: str, frames: list, fps: int) -> str:
+    """Writes RGB frames as an mp4 (imageio + imageio-ffmpeg), or a GIF when `path` ends in
+    .gif or no mp4 writer is installed (beside `path`). Returns the path written."""
     import imageio.v2 as imageio
 
-    frames = render_frames(policy, traj, n_episodes, width, height)
-    fps = int(round(1.0 / policy.env.dt))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     if path.lower().endswith(".gif"):
         imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
         return path
     try:
-        with warnings.catch_warnings():
-            # imageio-ffmpeg starts ffmpeg with subprocess: Python warns about fork + JAX threads
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with _no_fork_hooks():
             imageio.mimsave(path, frames, fps=fps, macro_block_size=8)
         return path
     except Exception:  # noqa: BLE001 (no ffmpeg backend)
         alt = os.path.splitext(path)[0] + ".gif"
         imageio.mimsave(alt, frames, duration=1000.0 / fps, loop=0)
         return alt
+
+
+@contextlib.contextmanager
+def _no_fork_hooks():
+    """imageio-ffmpeg starts ffmpeg with a ``preexec_fn`` (to keep Ctrl-C from it), which makes
+    Python run its fork hooks, and JAX's hook warns that os.fork() and its threads deadlock.
+    ffmpeg is exec'd at once, and without the preexec_fn (IMAGEIO_FFMPEG_NO_PREVENT_SIGINT)
+    the child is started without running any hook: no warning, nothing to hide."""
+    old = os.environ.get("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT")
+    os.environ["IMAGEIO_FFMPEG_NO_PREVENT_SIGINT"] = "1"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT", None)
+        else:
+            os.environ["IMAGEIO_FFMPEG_NO_PREVENT_SIGINT"] = old
+
+
+VIDEO_EPISODES = 2
+"""test episodes in each --video-every video"""
+
+
+def epoch_video(policy: Policy, path: str, n_episodes: int = VIDEO_EPISODES,
+                width: int = 320, height: int = 240):
+    """The first `n_episodes` test episodes of the run's evaluation seed, rendered to `path`
+    (`write_frames`). Returns (path written, frames, fps); RenderUnavailable without a
+    renderer or without imageio."""
+    if importlib.util.find_spec("imageio") is None:
+        raise RenderUnavailable("imageio is not installed (pip install 'daddpg-jax[video]')")
+    _, traj = evaluate(policy, n_episodes)
+    frames = render_frames(policy, traj, n_episodes, width, height)
+    fps = int(round(1.0 / policy.env.dt))
+    return write_frames(path, frames, fps), frames, fps

@@ -31,7 +31,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="evaluate.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by experiments/run.py")
     p.add_argument("--step", type=int, default=None,
@@ -123,9 +123,13 @@ def main(argv=None) -> int:
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    if args.perturb:
-        return _perturbation_grid(policy, args)
-    summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
+    try:   # sizes that cannot fit in memory are refused before allocating (ConfigError)
+        if args.perturb:
+            return _perturbation_grid(policy, args)
+        summary, traj = evaluation.evaluate(policy, args.episodes, args.seed)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     if args.video:
         try:
             written = evaluation.write_video(policy, traj, args.video, args.video_episodes,
