@@ -185,7 +185,7 @@ def test_learning_curve_has_success_and_loss_panels_two_x_axes_and_a_title(tmp_p
     assert q.get_ylabel() == "mean Q" and bottom.get_xlabel() == "env steps"
     labels = [t.get_text() for t in top.get_legend().get_texts()]
     assert labels[0] == "test success rate" and "arm-contact rate (test)" in labels
-    secondary = [a for a in fig.axes if a.get_xlabel() == "wall clock (s)"]
+    secondary = [a for a in top.child_axes if a.get_xlabel() == "wall clock (s)"]
     assert len(secondary) == 1
     assert fig._suptitle.get_text() == "reach / daddpg / 2 envs / seed 3"
     out = plotting.plot_learning_curve(rows, str(tmp_path / "lc.png"), "t")

@@ -572,7 +572,7 @@ def test_export_and_evaluate_fall_back_past_an_unreadable_checkpoint(cli_run, tm
     assert '"checkpoint": 1' in cap.out and "checkpoint 2" in cap.err
     assert "Traceback" not in cap.err
     assert export_cli.main([run, "--step", "2", "--out", out]) == 2
-    assert "no checkpoint of" in _one_error_line(capsys.readouterr().err)
+    assert f"checkpoint 2 of {run} cannot be read" in _one_error_line(capsys.readouterr().err)
     _truncate_a_data_file(run, 1)
     for main, argv in ((export_cli.main, [run, "--out", out]),
                        (evaluate_cli.main, [run, "--episodes", "2"])):

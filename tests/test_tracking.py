@@ -62,9 +62,10 @@ def scalars(events) -> dict:
 # -- TensorBoard ---------------------------------------------------------------------------
 
 def test_tensorboard_event_file_holds_every_column_and_the_config(env, tmp_path):
-    """~3 s: 3 toy epochs, then the event file is read back."""
+    """one toy run of 3 epochs (~10 s, mostly compiling), then the event file is read back."""
     run = str(tmp_path / "run")
     res = train(TINY.replace(n_epochs=3), run, env=env, plot=False)
+    assert res.stopped == "epochs" and res.summary().endswith("stopped: all 3 epochs done")
     events = read_events(os.path.join(run, tracking.TB_DIR))
     got = scalars(events)
     want = {tracking.tag(c) for c in METRIC_COLUMNS if c != "env_steps"}
@@ -86,17 +87,27 @@ def test_tensorboard_event_file_holds_every_column_and_the_config(env, tmp_path)
     assert text and '"n_cycles": 2' in text[0].tensor.string_val[0].decode()
 
 
-def test_tensorboard_resume_purges_dropped_epochs_and_no_tensorboard(env, tmp_path):
-    """~4 s: a resume continues the same event log; loggers=[] writes none."""
+def test_tensorboard_resume_continues_the_event_log(env, tmp_path):
+    """two toy runs (~20 s, mostly compiling): a resume after a dropped epoch (its CSV row
+    written, its checkpoint not) purges that epoch's events: each step once."""
     run = str(tmp_path / "run")
     train(TINY.replace(n_epochs=2), run, env=env, plot=False)
-    train(TINY.replace(n_epochs=3), run, env=env, plot=False, resume=True)
-    got = scalars(read_events(os.path.join(run, tracking.TB_DIR)))
-    steps = [s for s, _ in got["test/success_rate"]]
-    assert steps == sorted(steps) and len(steps) == 3
-    off = str(tmp_path / "off")
-    train(TINY.replace(n_epochs=1), off, env=env, plot=False, loggers=[])
-    assert not os.path.exists(os.path.join(off, tracking.TB_DIR))
+    import shutil
+
+    from daddpg_jax.running import checkpoint as ckpt
+
+    shutil.rmtree(ckpt.step_dir(run, 2))          # as if killed while saving checkpoint 2
+    res = train(TINY.replace(n_epochs=3), run, env=env, plot=False, resume=True)
+    events = read_events(os.path.join(run, tracking.TB_DIR))
+    purge = int(res.rows[0]["env_steps"]) + 1
+    assert [ev.step for ev in events if ev.HasField("session_log")] == [purge]
+    got = scalars(events)
+    # a reader that honours purge_step (TensorBoard) sees each epoch once: the last event of
+    # each step is the resumed run's
+    latest = {s: v for s, v in got["test/success_rate"]}
+    assert sorted(latest) == [int(r["env_steps"]) for r in res.rows]
+    assert [latest[int(r["env_steps"])] == pytest.approx(float(r["test_success_rate"]))
+            for r in res.rows] == [True] * 3
 
 
 @pytest.mark.e2e
@@ -133,21 +144,22 @@ def test_wandb_flag_without_wandb_is_one_line(tmp_path, monkeypatch, capsys):
 
 
 def test_video_every_without_a_renderer_warns_once(env, tmp_path, capfd):
-    """~3 s: the toy env has no MuJoCo scene to render: one warning, the run goes on."""
+    """one toy run (~10 s, mostly compiling): the toy env has no MuJoCo scene to render: one
+    warning, the run goes on."""
     runner._VIDEO_WARNED.clear()
-    res = train(TINY.replace(n_epochs=3), str(tmp_path / "run"), env=env, plot=False,
-                video_every=1)
+    res = train(TINY.replace(n_epochs=2), str(tmp_path / "run"), env=env, plot=False,
+                video_every=1, loggers=[])
     err = capfd.readouterr().err
-    assert res.epochs == 3 and err.count("--video-every: no video") == 1, err
+    assert res.epochs == 2 and err.count("--video-every: no video") == 1, err
     assert "Traceback" not in err
+    assert not os.path.exists(os.path.join(res.run_dir, tracking.TB_DIR))   # loggers=[]
 
 
 # -- progress and the closing line ---------------------------------------------------------
 
 def test_why_a_run_stopped(env, tmp_path):
-    """~3 s: epochs, time budget, --stop-at-success; the summary line says which."""
-    a = train(TINY.replace(n_epochs=1), str(tmp_path / "a"), env=env, plot=False)
-    assert a.stopped == "epochs" and a.summary().endswith("stopped: all 1 epochs done")
+    """two toy runs (~20 s, mostly compiling): time budget, --stop-at-success (all epochs
+    done: test_tensorboard_event_file_holds_every_column_and_the_config)."""
     b = train(TINY.replace(n_epochs=5), str(tmp_path / "b"), env=env, plot=False,
               time_budget_s=0.0)
     assert (b.stopped, b.epochs) == ("time_budget", 1)
@@ -232,3 +244,43 @@ def test_train_help_and_argument_errors_do_not_import_jax():
                          cwd=ROOT, timeout=60, env=dict(os.environ, PYTHONPATH=ROOT))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "unknown" in out.stderr and time.perf_counter() - t0 < 30
+
+
+def test_writing_a_video_gives_no_fork_warning(tmp_path):
+    """~1 s: ffmpeg is started without running JAX's fork hook (no 'os.fork() was called')."""
+    pytest.importorskip("imageio_ffmpeg")
+    import warnings
+
+    import jax
+    import numpy as np
+
+    from daddpg_jax.analysis.evaluation import write_frames
+
+    jax.devices()   # JAX's backend (and its fork hook) is up, as in a training process
+    frames = [np.full((64, 64, 3), 20 * i, np.uint8) for i in range(5)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = write_frames(str(tmp_path / "v.mp4"), frames, 25)
+    assert out.endswith(".mp4") and os.path.getsize(out) > 0
+    assert not [w for w in caught if "fork" in str(w.message)], [str(w.message) for w in caught]
+
+
+@pytest.mark.e2e
+def test_video_every_writes_videos_and_tensorboard_images(tmp_path, capfd):
+    """~20-40 s: a tiny reach run with --video-every 1 (skipped without EGL)."""
+    from tests.test_reliability import REACH_ARGS
+
+    run = str(tmp_path / "run")
+    runner._VIDEO_WARNED.clear()
+    assert train_cli.main([*REACH_ARGS, "--epochs", "2", "--video-every", "1", "--out",
+                           run]) == 0
+    err = capfd.readouterr().err
+    if "--video-every: no video" in err:
+        pytest.skip("no OpenGL renderer (EGL) on this machine")
+    videos = sorted(os.listdir(os.path.join(run, "videos")))
+    assert videos == ["epoch_0001.mp4", "epoch_0002.mp4"]
+    events = read_events(os.path.join(run, tracking.TB_DIR))
+    images = [(ev.step, v.image) for ev in events for v in ev.summary.value
+              if v.tag == "eval/video"]
+    assert len(images) == 2 and images[0][1].encoded_image_string[:6] == b"GIF89a"
+    assert images[0][1].width == 320 and images[0][1].height == 240

@@ -181,6 +181,8 @@ class OnnxPolicy:
             model = onnx.load(path)
         except Exception as e:  # noqa: BLE001 (protobuf decode errors of any kind)
             raise PolicyFormatError(f"{path!r} is not a readable ONNX file: {e}") from None
+        if not model.graph.node:
+            raise PolicyFormatError(f"{path!r} is not a readable ONNX file: it holds no graph")
         reference = _validated(_arrays_of(model), path)
         _check_signature(model, reference, path)
         try:
@@ -223,8 +225,8 @@ def _validated(arrays: dict[str, Any], path: str) -> NumpyPolicy:
         try:
             return NumpyPolicy.load(tmp)
         except PolicyFormatError as e:
-            raise PolicyFormatError(str(e).replace(repr(tmp), repr(path))
-                                    .replace(tmp, path)) from None
+            msg = str(e).replace(repr(tmp), repr(path)).replace(tmp, path)
+            raise PolicyFormatError(msg if path in msg else f"{path!r}: {msg}") from None
         except (KeyError, TypeError, ValueError) as e:
             raise PolicyFormatError(f"{path!r}: not a policy export ({e})") from None
     finally:

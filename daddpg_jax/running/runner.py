@@ -388,17 +388,19 @@ _VIDEO_WARNED: list = []
 
 
 def _epoch_video(cfg, env, fns, state, run_dir, epoch, env_steps, trackers) -> None:
-    """RUN_DIR/videos/epoch_{epoch}.mp4 of test episodes, also given to the trackers; without
-    a renderer one warning (once per process) and nothing else."""
+    """RUN_DIR/videos/epoch_{epoch}.mp4 of test episodes, also given to the trackers; when it
+    cannot be made (no renderer, no imageio, an env without a MuJoCo scene) one warning (once
+    per process) and nothing else."""
     from daddpg_jax.analysis import evaluation
 
     policy = evaluation.Policy(run_dir, epoch, cfg, {}, env, fns, state)
     try:
         path, frames, fps = evaluation.epoch_video(
             policy, os.path.join(run_dir, "videos", f"epoch_{epoch:04d}.mp4"))
-    except evaluation.RenderUnavailable as e:
+    except Exception as e:  # noqa: BLE001 (no EGL, an env without a scene: videos are extra)
         if not _VIDEO_WARNED:
-            warn(f"--video-every: no video ({e}); training goes on without videos")
+            why = str(e) if isinstance(e, evaluation.RenderUnavailable) else ckpt.root_cause(e)
+            warn(f"--video-every: no video ({why}); training goes on without videos")
             _VIDEO_WARNED.append(True)
         return
     for t in trackers:
@@ -558,6 +560,8 @@ def restore_readable(run_dir: str, template, step: int | None = None, best: bool
                  f"({why}); using an older one")
     if not bad:
         raise CheckpointError(f"run {run_dir} has no checkpoint")
+    if step is not None:
+        raise CheckpointError(f"checkpoint {step} of {run_dir} cannot be read ({bad[0][1]})")
     tried = ", ".join(str(s) for s, _ in bad)
     raise CheckpointError(f"no checkpoint of {run_dir} can be read (tried {tried}; newest: "
                           f"{bad[0][1]})")
