@@ -627,7 +627,7 @@ def test_full_disk_during_a_checkpoint_save_is_one_line_and_resumable(cli_run, t
 
 
 @pytest.mark.parametrize("argv, what", [
-    (["--set", "hidden=100000"], "hidden=100000"),
+    (["--set", "hidden=100000,100000"], "hidden=100000,100000"),
     (["--set", "buffer_size=10000000000"], "buffer_size=10,000,000,000"),
 ])
 def test_sizes_that_cannot_fit_in_memory_are_refused_before_allocating(tmp_path, capsys,

@@ -4,8 +4,9 @@ The runner (``daddpg_jax.running.runner.train``) gives each logger the run's con
 (``start``), then every metrics.csv row as it is written (``log_row``) and, with
 ``--video-every``, the evaluation videos (``log_video``). Every column of
 ``runner.METRIC_COLUMNS`` is logged against ``env_steps`` under the tag ``tag(column)``
-(``test/success_rate``, ``losses/critic_loss``, ``time/rollout_time``, ...); columns that are
-NaN in a run (``bc_loss`` without demonstrations) are logged as NaN.
+(``test/success_rate``, ``losses/critic_loss``, ``time/rollout_time``, ...); a value that is
+NaN (``bc_loss`` and ``q_filter_pass`` without demonstrations, the stage times on several
+devices, a fault rate an env does not report) is left out.
 
     tensorboard --logdir runs/            # RUN_DIR/tensorboard/ of every run
 
@@ -59,10 +60,11 @@ def _value(v) -> float:
 
 def row_scalars(row: dict) -> dict[str, float]:
     """{tag: value} of a metrics.csv row: every column of METRIC_COLUMNS but env_steps (the
-    x axis)."""
+    x axis), except those that are NaN in this row (e.g. bc_loss without demonstrations)."""
     from daddpg_jax.running.runner import METRIC_COLUMNS
 
-    return {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS if c != "env_steps"}
+    values = {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS if c != "env_steps"}
+    return {k: v for k, v in values.items() if not math.isnan(v)}
 
 
 def config_text(cfg, env_overrides: dict | None) -> str:
