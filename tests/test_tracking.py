@@ -111,24 +111,28 @@ def test_tensorboard_resume_continues_the_event_log(env, tmp_path):
 
 @pytest.mark.e2e
 def test_wandb_offline_logs_the_columns(env, tmp_path, monkeypatch):
-    """~15 s (wandb starts a service process): WANDB_MODE=offline, 2 toy epochs."""
+    """~10 s (wandb starts a service process): WANDB_MODE=offline, 2 toy epochs; the W&B run's
+    summary (its last logged values) holds the columns, and its files are in RUN_DIR/wandb."""
     pytest.importorskip("wandb")
     monkeypatch.setenv("WANDB_MODE", "offline")
     monkeypatch.setenv("WANDB_SILENT", "true")
     run = str(tmp_path / "run")
-    train(TINY.replace(n_epochs=2), run, env=env, plot=False,
-          loggers=[tracking.WandbLogger(run, project="test")])
-    import json
+    seen = {}
 
-    summaries = [os.path.join(d, "files", "wandb-summary.json")
-                 for d in (os.path.join(run, "wandb", n)
-                           for n in os.listdir(os.path.join(run, "wandb")))
-                 if os.path.isdir(d)]
-    summary = json.load(open(next(p for p in summaries if os.path.exists(p))))
+    class Recording(tracking.WandbLogger):
+        def close(self):
+            seen.update(dict(self.run.summary))
+            super().close()
+
+    res = train(TINY.replace(n_epochs=2), run, env=env, plot=False,
+                loggers=[Recording(run, project="test")])
     assert {"test/success_rate", "losses/critic_loss", "time/rollout_time",
-            "train/success_rate", "env_steps"} <= set(summary)
-    assert summary["env_steps"] == int(runner._read_rows(os.path.join(run, "metrics.csv"))[-1]
-                                       ["env_steps"])
+            "train/success_rate", "progress/epoch"} <= set(seen)
+    assert seen["env_steps"] == int(res.rows[-1]["env_steps"])
+    assert seen["losses/critic_loss"] == pytest.approx(float(res.rows[-1]["critic_loss"]))
+    offline = [n for n in os.listdir(os.path.join(run, "wandb")) if n.startswith("offline-run")]
+    assert len(offline) == 1
+    assert [n for n in os.listdir(os.path.join(run, "wandb", offline[0])) if n.endswith(".wandb")]
 
 
 def test_wandb_flag_without_wandb_is_one_line(tmp_path, monkeypatch, capsys):
