@@ -349,6 +349,8 @@ class Progress:
         self.updates_done = 0
         self.compiling = False
         self.t_compile = None
+        if self.tty:
+            self.bar.set_postfix_str("starting (env, networks)...", refresh=True)
 
     def start(self, epoch: int):
         """Before the first cycle: the resumed position, and the compiling phase."""
@@ -377,9 +379,9 @@ class Progress:
         else:
             sps_text = f"{sps:,.0f}"
         self.updates_done = 0
-        self.bar.update(1)
         self.bar.set_postfix(train_success=f"{float(m['success']):.2f}", steps_s=sps_text,
                              refresh=False)
+        self.bar.update(1)
 
     def updates(self, n):
         self.updates_done += self.update_tick
