@@ -15,16 +15,20 @@ from the seed, and restoring keeps the template's.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import fcntl
 import glob
 import importlib.metadata
 import json
+import logging
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
+import traceback
 
 import jax
 import jax.numpy as jnp
@@ -75,7 +79,7 @@ def save(run_dir, state, step: int, save_buffer: bool = False, keep: int = 3) ->
     if save_buffer:
         items["buffer"] = ocp.args.StandardSave(buffer)
     try:
-        with _manager(run_dir, keep) as mngr:
+        with _quiet_failing_save(), _manager(run_dir, keep) as mngr:
             mngr.save(int(step), args=ocp.args.Composite(**items), force=True)
             mngr.wait_until_finished()
     except Exception as e:  # noqa: BLE001 (orbax, TensorStore and OS errors alike)
@@ -83,11 +87,88 @@ def save(run_dir, state, step: int, save_buffer: bool = False, keep: int = 3) ->
         last = latest_step(run_dir)
         where = (f"resume from checkpoint {last}" if last is not None
                  else "no earlier checkpoint: start the run again")
+        why = root_cause(e, width=160)
+        if _disk_full(e):
+            why = f"no space left on device: {why}"
         raise CheckpointSaveError(
             f"could not save checkpoint {int(step)} in {checkpoint_dir(run_dir)} "
-            f"({root_cause(e)}); free space or fix the cause, then {where} with "
+            f"({why}); free space or fix the cause, then {where} with "
             f"daddpg-train --resume {os.fspath(run_dir)}") from e
     return os.path.join(checkpoint_dir(run_dir), str(int(step)))
+
+
+def _disk_full(e: BaseException) -> bool:
+    """Whether an exception chain says the disk is full (ENOSPC, or TensorStore's
+    RESOURCE_EXHAUSTED with os_error_code 28)."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        text = str(e)
+        if (getattr(e, "errno", None) == 28 or "No space left on device" in text
+                or "os_error_code='28'" in text):
+            return True
+        e = e.__cause__ or e.__context__
+    return False
+
+
+class _DropOrbaxErrors(logging.Filter):
+    """Drops ERROR records about orbax's work (the message or the traceback names orbax)."""
+
+    def filter(self, record):
+        if record.levelno < logging.ERROR:
+            return True
+        text = record.getMessage()
+        if record.exc_info and record.exc_info[2] is not None:
+            text += "".join(traceback.format_tb(record.exc_info[2]))
+        return "orbax" not in text
+
+
+_QUIET_LOGGERS = ("absl", "asyncio", "orbax")
+_QUIET = _DropOrbaxErrors()
+
+
+def _closed_loop(etype, value, tb) -> bool:
+    """Whether an error is 'RuntimeError: Event loop is closed' raised in asyncio's event loop
+    (TensorStore's completion callbacks of a save that orbax gave up on)."""
+    last = tb
+    while last is not None and last.tb_next is not None:
+        last = last.tb_next
+    where = last.tb_frame.f_code.co_filename if last is not None else ""
+    return (etype is RuntimeError and "Event loop is closed" in str(value)
+            and where.endswith(os.path.join("asyncio", "base_events.py")))
+
+
+def _closed_loop_hook(prev):
+    """sys.unraisablehook (TensorStore reports a failed callback as unraisable) that drops the
+    errors of `_closed_loop` and passes everything else to `prev`."""
+    def hook(u):
+        if not _closed_loop(u.exc_type, u.exc_value, u.exc_traceback):
+            prev(u)
+
+    hook._daddpg_closed_loop = True
+    return hook
+
+
+@contextlib.contextmanager
+def _quiet_failing_save():
+    """While orbax saves: a failing save (e.g. a full disk) makes each of orbax's worker threads
+    log the failure with its traceback (absl ERROR records, during and after the save), asyncio
+    log its never-retrieved task errors, and TensorStore's callbacks into the closed event loop
+    print 'Event loop is closed' tracebacks: hundreds of lines for one error, which `save`
+    raises itself and the runner reports in one line. ERROR records that name orbax are dropped
+    during the save, and from then on if it failed; so are the closed-loop tracebacks."""
+    if not getattr(sys.unraisablehook, "_daddpg_closed_loop", False):
+        sys.unraisablehook = _closed_loop_hook(sys.unraisablehook)
+    loggers = [logging.getLogger(n) for n in _QUIET_LOGGERS]
+    for lg in loggers:
+        lg.addFilter(_QUIET)
+    try:
+        yield
+    except BaseException:
+        raise   # the filters stay: orbax's threads go on logging the failure
+    else:
+        for lg in loggers:
+            lg.removeFilter(_QUIET)
 
 
 def root_cause(e: BaseException, width: int = 200) -> str:
