@@ -11,6 +11,10 @@ RUN_DIR layout::
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
     checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
                          without the replay buffer
+    tensorboard/         TensorBoard event files (daddpg_jax/running/tracking.py); with --wandb
+                         wandb/, with --video-every videos/
+    .lock                held (flock) by the process using the run directory: a second run on
+                         it stops with RunLockedError
 
 Crash safety (docs/RELIABILITY.md, "Training runs"): after each epoch metrics.csv is rewritten
 whole through a temporary file and ``os.replace``, then the checkpoint is saved (orbax renames
