@@ -6,6 +6,14 @@ Imports are lazy (PEP 562): ``import mjx_envs.observation`` (or ``daddpg_jax.dep
 ``mjx_envs.numpy_env``) does not import JAX, so the robot side can reuse the observation code
 with NumPy only. ``make``, ``State``, ``TaskConfig``, ``DualArmEnv`` and the task classes load
 the JAX environments on first use.
+
+Gymnasium: when Gymnasium is installed, importing ``mjx_envs`` registers the adapter's ids
+(``ENV_IDS``, ``DENSE_ENV_IDS``; entry point ``mjx_envs.gym_env:DualUR3GoalEnv``, loaded on the
+first ``make``), so both Gymnasium conventions work, as for ``gymnasium_robotics``:
+
+    gymnasium.make("mjx_envs:DualUR3Push-v0")      # imports mjx_envs, then makes the env
+    gymnasium.register_envs(mjx_envs)                # after `import mjx_envs`
+    gymnasium.make("DualUR3PushDense-v0")
 """
 
 from __future__ import annotations
@@ -61,6 +69,43 @@ def _task_class(task: str):
     return cls
 
 
+ENV_IDS = {"reach": "DualUR3Reach-v0", "push": "DualUR3Push-v0",
+           "pickup": "DualUR3Pickup-v0", "pot": "DualUR3Pot-v0"}
+"""Gymnasium ids of the tasks (sparse reward, the trainer's)"""
+
+DENSE_ENV_IDS = {"reach": "DualUR3ReachDense-v0", "push": "DualUR3PushDense-v0",
+                 "pickup": "DualUR3PickupDense-v0", "pot": "DualUR3PotDense-v0"}
+"""Gymnasium ids of the dense-reward variants (``reward_type="dense"``, docs/TOOLS.md)"""
+
+MAX_EPISODE_STEPS = 50
+"""``max_episode_steps`` of every Gymnasium id (the tasks' ``episode_length``)"""
+
+
+def register_gymnasium_envs() -> list[str]:
+    """Registers ENV_IDS and DENSE_ENV_IDS with Gymnasium (idempotent; needs gymnasium).
+    Returns the ids, sparse ones first."""
+    import gymnasium
+
+    ids = []
+    for reward_type, table in (("sparse", ENV_IDS), ("dense", DENSE_ENV_IDS)):
+        for task, env_id in table.items():
+            if env_id not in gymnasium.registry:
+                gymnasium.register(id=env_id, entry_point="mjx_envs.gym_env:DualUR3GoalEnv",
+                                   kwargs={"task": task, "reward_type": reward_type},
+                                   max_episode_steps=MAX_EPISODE_STEPS)
+            ids.append(env_id)
+    return ids
+
+
+def _register_if_gymnasium() -> None:
+    """Gymnasium 1.x loads no plugins: a package registers its ids when it is imported."""
+    try:
+        import gymnasium  # noqa: F401  (optional: the [gym] extra)
+    except ImportError:
+        return
+    register_gymnasium_envs()
+
+
 def register(name: str, cls) -> None:
     _REGISTRY[name] = cls
 
@@ -82,4 +127,7 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
     return cls(cfg, physics=physics)
 
 
-__all__ = ["make", "default_config", "register", "State", "TaskConfig", "DualArmEnv", "TASKS"]
+__all__ = ["make", "default_config", "register", "State", "TaskConfig", "DualArmEnv", "TASKS",
+           "ENV_IDS", "DENSE_ENV_IDS", "register_gymnasium_envs"]
+
+_register_if_gymnasium()

@@ -1,9 +1,9 @@
 """Gymnasium adapter: every task as a goal-conditioned ``gymnasium.Env`` (NumPy only, no JAX).
 
     import gymnasium as gym
-    import mjx_envs.gym_env          # registers DualUR3Reach-v0, DualUR3Push-v0,
-                                     # DualUR3Pickup-v0, DualUR3Pot-v0
-    env = gym.make("DualUR3Push-v0")
+    env = gym.make("mjx_envs:DualUR3Push-v0")   # importing mjx_envs registers the ids:
+                                                # DualUR3{Reach,Push,Pickup,Pot}-v0 and the
+                                                # dense-reward DualUR3{...}Dense-v0
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
@@ -29,12 +29,15 @@ terminal observation.
 Reward: the SUM over both arms of the env's per-arm reward, i.e. per arm
 ``goal_scale * -(d_i >= threshold) + team_scale * (success - 1) + info["arm_contact_penalty"][i]``;
 with the defaults (team and contact terms 0) it lies in {-2, -1, 0} and is 0 exactly when both
-arms are within the threshold. ``compute_reward(achieved_goal, desired_goal, info)`` computes the
-same value and is vectorized over leading axes (HER relabelling calls it with ``[batch, 6]``
-goals and an array of info dicts); the goal-independent arm-contact penalty comes from
-``info["arm_contact_penalty"]``: a missing ``info``, an empty dict or a dict without the term
-counts as 0 (the Gymnasium/HER convention). ``info["is_success"]`` is 1.0 when every arm is
-within the threshold.
+arms are within the threshold. The dense variants (``reward_type="dense"``, ids
+``DualUR3{Reach,Push,Pickup,Pot}Dense-v0``) replace the goal term by minus the distance, as
+Gymnasium-Robotics' dense tasks do: per arm ``goal_scale * -d_i`` (metres) plus the same team
+and contact terms, i.e. ``-(d_left + d_right)`` with the defaults.
+``compute_reward(achieved_goal, desired_goal, info)`` computes the same value and is vectorized
+over leading axes (HER relabelling calls it with ``[batch, 6]`` goals and an array of info
+dicts); the goal-independent arm-contact penalty comes from ``info["arm_contact_penalty"]``: a
+missing ``info``, an empty dict or a dict without the term counts as 0 (the Gymnasium/HER
+convention). ``info["is_success"]`` is 1.0 when every arm is within the threshold.
 
 Task settings are the tasks' entries of `mjx_envs.settings` (JAX-free data shared with the JAX
 env); keyword arguments override any of them, e.g.
@@ -52,15 +55,20 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from mjx_envs import (  # noqa: F401  (ENV_IDS, DENSE_ENV_IDS: read here by callers too)
+    DENSE_ENV_IDS,
+    ENV_IDS,
+    register_gymnasium_envs,
+    rules,
+    settings,
+)
 from mjx_envs import observation as obs_lib
-from mjx_envs import rules, settings
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import fields
 
 NUM_ARMS = 2
 
-ENV_IDS = {"reach": "DualUR3Reach-v0", "push": "DualUR3Push-v0",
-           "pickup": "DualUR3Pickup-v0", "pot": "DualUR3Pot-v0"}
+REWARD_TYPES = ("sparse", "dense")
 
 
 def task_config(task: str, **overrides) -> settings.TaskConfig:
@@ -105,10 +113,14 @@ class DualUR3GoalEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
     def __init__(self, task: str = "reach", render_mode: str | None = None,
-                 width: int = 480, height: int = 360, **overrides):
+                 width: int = 480, height: int = 360, reward_type: str = "sparse",
+                 **overrides):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
         self.task = task
+        self.reward_type = reward_type
         self.sim = NumpyDualArmEnv(task_config(task, **overrides), task=task, exact=True)
         self.config = cfg = self.sim.config
         self.settings = dataclasses.asdict(cfg)
@@ -144,7 +156,12 @@ class DualUR3GoalEnv(gym.Env):
         lead = np.broadcast_shapes(ag.shape, dg.shape)[:-1]
         ag = ag.reshape(ag.shape[:-1] + (NUM_ARMS, 3))
         dg = dg.reshape(dg.shape[:-1] + (NUM_ARMS, 3))
-        return self.sim.compute_reward(ag, dg, _info_terms(info, tuple(lead)))
+        info = _info_terms(info, tuple(lead))
+        if self.reward_type == "sparse":
+            return self.sim.compute_reward(ag, dg, info)
+        r = self.sim.rules
+        terms = dict(r.reward_terms(np, ag, dg), goal=-rules.goal_distance(np, ag, dg))
+        return np.asarray(r.reward(np, ag, dg, info, terms=terms), np.float32)
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
         """Reward = sum over arms of the per-arm reward; shape = leading axes of the goals
@@ -225,12 +242,6 @@ class DualUR3GoalEnv(gym.Env):
 
 
 def register_envs() -> list[str]:
-    """Registers ``DualUR3{Reach,Push,Pickup,Pot}-v0`` with Gymnasium (idempotent)."""
-    for task, env_id in ENV_IDS.items():
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point="mjx_envs.gym_env:DualUR3GoalEnv",
-                         kwargs={"task": task})
-    return list(ENV_IDS.values())
-
-
-register_envs()
+    """Registers ``DualUR3{Reach,Push,Pickup,Pot}-v0`` and their ``...Dense-v0`` variants with
+    Gymnasium (idempotent; ``import mjx_envs`` already did). Returns the ids."""
+    return register_gymnasium_envs()

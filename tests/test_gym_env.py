@@ -87,7 +87,9 @@ def test_success_reward_zero_and_seeding():
 
 def test_registered_ids_and_overrides():
     ids = ge.register_envs()
-    assert ids == ["DualUR3Reach-v0", "DualUR3Push-v0", "DualUR3Pickup-v0", "DualUR3Pot-v0"]
+    assert ids == ["DualUR3Reach-v0", "DualUR3Push-v0", "DualUR3Pickup-v0", "DualUR3Pot-v0",
+                   "DualUR3ReachDense-v0", "DualUR3PushDense-v0", "DualUR3PickupDense-v0",
+                   "DualUR3PotDense-v0"]
     env = gym.make("DualUR3Reach-v0", arm_contact_penalty=0.1)
     assert env.unwrapped.arm_contact_penalty == np.float32(0.1)
     with pytest.raises(ValueError, match="unknown setting"):
@@ -211,3 +213,51 @@ def test_same_trajectory_as_the_trainers_c_engine_env(task, over):
         np.testing.assert_allclose(o["achieved_goal"], np.asarray(st.obs["achieved_goal"]).ravel(),
                                    atol=1e-5)
         assert r == float(np.sum(st.reward))
+
+
+@pytest.mark.parametrize("env_id", list(ge.DENSE_ENV_IDS.values()))
+def test_dense_ids_pass_the_env_checker_and_reward_minus_the_distance(env_id):
+    """~1 s each: the ...Dense-v0 ids (the sparse ones: test_env_checker_and_spaces)."""
+    env = gym.make(env_id)
+    assert env.spec.max_episode_steps == 50
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unbounded Box observations, as in the Fetch tasks
+        check_env(env.unwrapped, skip_render_check=True)
+    env.reset(seed=1)
+    rng = np.random.default_rng(1)
+    for t in range(1, 51):
+        obs, r, terminated, truncated, info = env.step(rng.uniform(-1, 1, 8).astype(np.float32))
+        d = np.linalg.norm(obs["achieved_goal"].reshape(2, 3) - obs["desired_goal"].reshape(2, 3),
+                           axis=-1)
+        assert r == pytest.approx(-float(d.sum()), abs=1e-6)      # defaults: -(d_left + d_right)
+        assert r == float(env.unwrapped.compute_reward(obs["achieved_goal"],
+                                                       obs["desired_goal"], info))
+        assert truncated is (t == 50) and terminated is False
+    assert env.unwrapped.reward_type == "dense"
+
+
+@pytest.mark.parametrize("env_id", list(ge.ENV_IDS.values()))
+def test_sparse_ids_have_max_episode_steps(env_id):
+    assert gym.spec(env_id).max_episode_steps == 50
+    assert gym.spec(env_id).kwargs["reward_type"] == "sparse"
+
+
+@pytest.mark.e2e
+def test_gymnasium_make_the_standard_way_in_a_fresh_interpreter():
+    """~2 s: gymnasium.make("mjx_envs:...") and gymnasium.register_envs(mjx_envs) with nothing
+    imported before, as users of gymnasium_robotics write them."""
+    code = ("import gymnasium as gym, numpy as np\n"
+            "e = gym.make('mjx_envs:DualUR3Push-v0')\n"
+            "assert e.spec.max_episode_steps == 50, e.spec\n"
+            "e.reset(seed=0); e.step(np.zeros(8, np.float32))\n"
+            "import mjx_envs\n"
+            "gym.register_envs(mjx_envs)\n"
+            "d = gym.make('DualUR3PotDense-v0'); d.reset(seed=0)\n"
+            "import sys; assert 'jax' not in sys.modules\n")
+    for snippet in (code, code.replace("e = gym.make('mjx_envs:DualUR3Push-v0')",
+                                       "import mjx_envs; gym.register_envs(mjx_envs)\n"
+                                       "e = gym.make('DualUR3Push-v0')")):
+        out = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True,
+                             cwd="/", timeout=120,
+                             env=dict(os.environ, PYTHONPATH=ROOT))
+        assert out.returncode == 0, out.stderr[-2000:]

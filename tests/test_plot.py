@@ -167,3 +167,51 @@ def test_cli_summary_csv(tmp_path, capsys):
     assert float(d["final_test_success_std"]) == pytest.approx(np.std([0.4, 0.6], ddof=1))
     assert d["reached_0.5"] == "1"
     assert "reach/daddpg: last-5 test success 0.28 ± 0.11" in r.out
+
+
+def test_learning_curve_has_success_and_loss_panels_two_x_axes_and_a_title(tmp_path):
+    """in-process, < 1 s: the runner's learning_curve.png."""
+    run = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8, 1.0], 10.0)
+    rows = plotting.read_metrics(run)
+    fig = plotting.learning_curve_figure(rows, "reach / daddpg / 2 envs / seed 3")
+    top, bottom, q = fig.axes[:3]
+    assert "rate" in top.get_ylabel() and "loss" in bottom.get_ylabel()
+    assert q.get_ylabel() == "mean Q" and bottom.get_xlabel() == "env steps"
+    labels = [t.get_text() for t in top.get_legend().get_texts()]
+    assert labels[0] == "test success rate" and "arm-contact rate (test)" in labels
+    secondary = [a for a in top.child_axes if a.get_xlabel() == "wall clock (s)"]
+    assert len(secondary) == 1
+    assert fig._suptitle.get_text() == "reach / daddpg / 2 envs / seed 3"
+    out = plotting.plot_learning_curve(rows, str(tmp_path / "lc.png"), "t")
+    assert os.path.getsize(out) > 10_000
+
+
+def test_plot_warns_about_repeated_seeds_and_fewer_runs(tmp_path, capsys):
+    """in-process, ~1 s: two runs of one group with seed 0, one of them shorter."""
+
+    a = _fake_run(tmp_path / "a", [0.0, 0.4, 0.8, 1.0], 10.0, seed=0)
+    b = _fake_run(tmp_path / "b", [0.1, 0.6], 11.0, seed=0)
+    assert plot_cli.main([a, b, "--out", str(tmp_path / "x.png")]) == 0
+    err = capsys.readouterr().err
+    assert "group 'reach/daddpg' has 2 runs with seed 0" in err
+    assert "runs have 2, 4 epochs; after epoch 2 its mean is over fewer runs" in err
+    agg = plotting.aggregate([plotting.read_metrics(a), plotting.read_metrics(b)])
+    assert list(agg["n"]) == [2, 2, 1, 1]
+
+
+def test_perturbation_plot_units_integer_ticks_and_error_bars():
+    """in-process, < 1 s"""
+    from daddpg_jax.analysis import perturbation
+
+    grid = {"obs_noise": [0.0, 0.01], "latency": [0, 1, 2]}
+    rows = [dict(obs_noise=n, latency=k, success_rate=0.5, success_ci95_low=0.4,
+                 success_ci95_high=0.6) for n in grid["obs_noise"] for k in grid["latency"]]
+    fig = perturbation.perturbation_figure(rows, grid, "push / run")
+    noise, latency = fig.axes
+    assert noise.get_xlabel() == "observation noise std (m)"
+    assert latency.get_xlabel() == "action latency (control steps)"
+    fig.canvas.draw()
+    ticks = [t for t in latency.get_xticks() if 0 <= t <= 2]
+    assert ticks and all(float(t).is_integer() for t in ticks)
+    assert "95% Wilson interval" in fig._suptitle.get_text()
+    assert noise.get_ylabel() == "test success rate"

@@ -4,6 +4,8 @@ unreadable checkpoints, kills at any moment (SIGKILL, then --resume: bit-exact w
 guard and the non-finite-loss message."""
 
 import csv
+import errno
+import fcntl
 import os
 import random
 import shutil
@@ -488,3 +490,198 @@ def test_kill_9_at_random_moments_then_resume_is_bit_exact(tmp_path_factory, epo
           "the newest checkpoint); kills: "
           + "; ".join(f"{k['mode']} {k['t']} s, ckpts {k['steps']}, partial {k['partial']}, "
                       f"rows {len(k['rows'])}" for k in kills))
+
+
+# -- 9. runs never mix, and every failure is one line ----------------------------------------
+
+def _hold_lock(run: str) -> int:
+    """The run directory's lock, held as another process holds it (its own open file)."""
+    os.makedirs(run, exist_ok=True)
+    fd = os.open(os.path.join(run, ckpt.LOCK_FILE), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def test_a_run_directory_in_use_is_refused_with_one_line(env, tmp_path, capsys):
+    """~2 s: the CLI and the library refuse a directory whose lock is held, writing nothing."""
+    run = str(tmp_path / "run")
+    fd = _hold_lock(run)
+    try:
+        with pytest.raises(SystemExit) as e:
+            train_cli.main([*REACH_ARGS, "--epochs", "1", "--out", run])
+        line = _one_error_line(capsys.readouterr().err)
+        assert e.value.code == 2 and "another process" in line
+        with pytest.raises(ckpt.RunLockedError, match="another process"):
+            train(TINY.replace(n_epochs=1), run, env=env, plot=False)
+        assert os.listdir(run) == [ckpt.LOCK_FILE]
+    finally:
+        os.close(fd)
+    # released: a directory holding only the lock file counts as empty
+    assert train(TINY.replace(n_epochs=1), run, env=env, plot=False).epochs == 1
+
+
+@pytest.mark.e2e
+def test_two_runs_started_at_once_on_one_out(tmp_path):
+    """~30-60 s: two daddpg-train processes on the same new --out; one trains, the other
+    stops with one line and writes nothing."""
+    run = str(tmp_path / "run")
+    procs = [subprocess.Popen([sys.executable, RUN_PY, *REACH_ARGS, "--epochs", "1",
+                               "--no-tensorboard", "--out", run], cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    codes = [p.returncode for p in procs]
+    assert sorted(codes) == [0, 2], outs
+    line = _one_error_line(outs[codes.index(2)][1])
+    assert "another process" in line or "not empty" in line
+    assert ckpt.all_steps(run) == [1] and _epochs(run) == [1]
+
+
+CORRUPT_CONFIGS = {
+    "not JSON": ("{not json", "invalid JSON"),
+    "a list": ("[1, 2]", "a JSON list"),
+    "no config key": ('{"versions": {}}', "no 'config' entry"),
+    "a bad value": ('{"config": {"hidden": "abc"}}', "invalid training config"),
+}
+
+
+@pytest.mark.parametrize("what", CORRUPT_CONFIGS)
+def test_corrupt_config_json_is_one_line(cli_run, tmp_path, capsys, what):
+    """< 1 s each: --resume, daddpg-export and daddpg-evaluate name the file in one line."""
+    from daddpg_jax.cli import evaluate as evaluate_cli
+
+    run = str(tmp_path / "run")
+    shutil.copytree(cli_run, run)
+    path = os.path.join(run, "config.json")
+    text, why = CORRUPT_CONFIGS[what]
+    with open(path, "w") as f:
+        f.write(text)
+    with pytest.raises(SystemExit) as e:
+        train_cli.main(["--resume", run, "--epochs", "3", "--no-progress"])
+    assert e.value.code == 2
+    lines = [_one_error_line(capsys.readouterr().err)]
+    assert export_cli.main([run, "--out", str(tmp_path / "p.npz")]) == 2
+    lines.append(_one_error_line(capsys.readouterr().err))
+    assert evaluate_cli.main([run, "--episodes", "2"]) == 2
+    lines.append(_one_error_line(capsys.readouterr().err))
+    for line in lines:
+        assert path in line and why in line, line
+    assert ckpt.all_steps(run) == [1, 2] and not os.path.exists(tmp_path / "p.npz")
+
+
+def test_export_and_evaluate_fall_back_past_an_unreadable_checkpoint(cli_run, tmp_path,
+                                                                      capsys):
+    """~5 s: the newest readable checkpoint with a warning, as --resume; one line when none
+    (or the asked-for --step) can be read; nothing deleted."""
+    from daddpg_jax.cli import evaluate as evaluate_cli
+    from daddpg_jax.deploy import NumpyPolicy
+
+    run = str(tmp_path / "run")
+    shutil.copytree(cli_run, run)
+    _truncate_a_data_file(run, 2)
+    out = str(tmp_path / "p.npz")
+    assert export_cli.main([run, "--out", out]) == 0
+    err = capsys.readouterr().err
+    assert f"checkpoint 2 ({ckpt.step_dir(run, 2)}) cannot be read" in err
+    assert "OUT_OF_RANGE" in err and "Traceback" not in err and "Exception ignored" not in err
+    assert NumpyPolicy.load(out).meta["source"]["checkpoint_step"] == 1
+    assert evaluate_cli.main([run, "--episodes", "2", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert '"checkpoint": 1' in cap.out and "checkpoint 2" in cap.err
+    assert "Traceback" not in cap.err
+    assert export_cli.main([run, "--step", "2", "--out", out]) == 2
+    assert f"checkpoint 2 of {run} cannot be read" in _one_error_line(capsys.readouterr().err)
+    _truncate_a_data_file(run, 1)
+    for main, argv in ((export_cli.main, [run, "--out", out]),
+                       (evaluate_cli.main, [run, "--episodes", "2"])):
+        assert main(argv) == 2
+        line = _one_error_line(capsys.readouterr().err)
+        assert "no checkpoint of" in line and "can be read" in line
+    assert ckpt.all_steps(run) == [1, 2]
+
+
+def test_export_cli_writes_onnx_of_a_run(cli_run, tmp_path, capsys):
+    """~2 s: daddpg-export --format onnx; the graph acts as the .npz of the same checkpoint."""
+    pytest.importorskip("onnxruntime")
+    from daddpg_jax.deploy import NumpyPolicy
+    from daddpg_jax.deploy.onnx_policy import OnnxPolicy
+
+    onnx_out, npz_out = str(tmp_path / "p.onnx"), str(tmp_path / "p.npz")
+    assert export_cli.main([cli_run, "--format", "onnx", "--out", onnx_out]) == 0
+    assert export_cli.main([cli_run, "--out", npz_out]) == 0
+    assert f"wrote {onnx_out}" in capsys.readouterr().out
+    a, b = OnnxPolicy.load(onnx_out), NumpyPolicy.load(npz_out)
+    assert a.meta == b.meta
+    rng = np.random.default_rng(0)
+    o, g = rng.normal(size=(64, 2, 25)), rng.normal(size=(64, 2, 3))
+    np.testing.assert_allclose(a.act(o, g), b.act(o, g), rtol=0, atol=1e-5)
+
+
+def test_full_disk_during_a_checkpoint_save_is_one_line_and_resumable(cli_run, tmp_path,
+                                                                      monkeypatch, capsys):
+    """~5 s: orbax's save fails with ENOSPC halfway (its temporary directory written) at
+    epoch 2: one line, exit code 1, no partial checkpoint left; --resume then finishes the
+    run as if nothing happened (--save-buffer: the same rows as the uninterrupted run)."""
+    run = str(tmp_path / "run")
+    real = ocp.CheckpointManager.save
+
+    def full_disk(self, step, *a, **k):
+        if int(step) == 2:
+            os.makedirs(os.path.join(str(self.directory), f"2{ckpt._ORBAX_TMP}-1", "state"))
+            raise ValueError("Failed to write checkpoint") from OSError(
+                errno.ENOSPC, "No space left on device")
+        return real(self, step, *a, **k)
+
+    monkeypatch.setattr(ocp.CheckpointManager, "save", full_disk)
+    assert train_cli.main([*REACH_ARGS, "--epochs", "2", "--out", run]) == 1
+    line = _one_error_line(capsys.readouterr().err)
+    assert "could not save checkpoint 2" in line and "No space left on device" in line
+    assert f"--resume {run}" in line
+    assert sorted(os.listdir(ckpt.checkpoint_dir(run))) == ["1"]
+    monkeypatch.undo()
+    assert train_cli.main(["--resume", run, "--epochs", "2", "--no-progress"]) == 0
+    assert _learning(_rows(run)) == _learning(_rows(cli_run))
+    assert ckpt.all_steps(run) == [1, 2]
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["--set", "hidden=100000,100000"], "hidden=100000,100000"),
+    (["--set", "buffer_size=10000000000"], "buffer_size=10,000,000,000"),
+])
+def test_sizes_that_cannot_fit_in_memory_are_refused_before_allocating(tmp_path, capsys,
+                                                                       argv, what):
+    """~2 s each: the training state's size from its shapes, refused in one line."""
+    run = str(tmp_path / "run")
+    assert train_cli.main([*REACH_ARGS, *argv, "--epochs", "1", "--out", run]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert what in line and "memory" in line and "available" in line
+    assert os.listdir(run) == [ckpt.LOCK_FILE]
+
+
+def test_evaluation_too_large_for_memory_is_one_line(cli_run, capsys):
+    """~2 s: daddpg-evaluate --episodes 1000000000 is refused before allocating."""
+    from daddpg_jax.cli import evaluate as evaluate_cli
+
+    assert evaluate_cli.main([cli_run, "--episodes", "1000000000"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "1,000,000,000 episodes" in line and "--episodes" in line
+
+
+def test_planted_symlinks_are_never_written_through(env, tmp_path):
+    """~3 s: files named as the temporary files of older versions, planted as symlinks in a
+    run directory, are not written through (temporary names are new, O_EXCL, random)."""
+    victim = tmp_path / "victim"
+    victim.write_text("keep")
+    run = str(tmp_path / "run")
+    train(TINY.replace(n_epochs=1), run, env=env)
+    planted = ["metrics.csv.tmp", "config.json.tmp", "learning_curve.tmp.png",
+               "learning_curve.png.tmp"]
+    for name in planted:
+        os.symlink(victim, os.path.join(run, name))
+    os.symlink(tmp_path, os.path.join(ckpt.checkpoint_dir(run, best=True), ".copy-2"))
+    train(TINY.replace(n_epochs=2), run, env=env, resume=True)
+    ckpt.save_config(run, TINY)
+    assert victim.read_text() == "keep" and _epochs(run) == [1, 2]
+    assert not [n for n in os.listdir(run) if n.startswith(".tmp-")]
+    for name in planted:
+        assert os.path.islink(os.path.join(run, name))

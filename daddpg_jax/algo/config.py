@@ -296,6 +296,28 @@ def current_device() -> str:
     return backend if backend in DEVICES else "gpu"
 
 
+_ACCELERATOR_PLUGINS = {"gpu": ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin",
+                                "jax_rocm7_plugin"),
+                        "tpu": ("libtpu",)}
+"""JAX's accelerator plugins by device (their presence, not an import, decides guess_device)"""
+
+
+def guess_device() -> str:
+    """The platform JAX would run on, guessed without importing JAX (for --help and argument
+    errors, which stay fast): the first entry of JAX_PLATFORMS if set, 'gpu' / 'tpu' when one
+    of JAX's accelerator plugins is installed, else 'cpu'. A run asks JAX (`current_device`)."""
+    import importlib.util
+    import os
+
+    first = os.environ.get("JAX_PLATFORMS", "").split(",")[0].strip().lower()
+    if first:
+        return first if first in DEVICES else "gpu"
+    for device, mods in _ACCELERATOR_PLUGINS.items():
+        if any(importlib.util.find_spec(m) is not None for m in mods):
+            return device
+    return "cpu"
+
+
 def replay_ratio(n_batches: int, batch_size: int, num_envs: int, episode_length: int = 50) -> float:
     """Gradient samples per stored transition: n_batches * batch_size / (num_envs * T)."""
     return n_batches * batch_size / (num_envs * episode_length)

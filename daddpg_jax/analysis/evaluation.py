@@ -35,13 +35,14 @@ second miss raises `EngineHang` (``daddpg-evaluate`` then stops with one line, e
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import importlib.util
 import math
 import os
 import sys
 import threading
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -113,15 +114,15 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     ``best`` the run's best checkpoint (the epoch of its best test success)."""
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.running.runner import make_env, restore_readable
 
     if best and step is not None:
         raise NoCheckpointError("give a checkpoint step or best, not both")
     try:
         ckpt.check_run_dir(run_dir, step, best=best)
-    except ckpt.RunDirError as e:
+        cfg, payload = ckpt.load_config(run_dir)
+    except ckpt.RunDirError as e:   # ConfigFileError too: one line naming the file
         raise NoCheckpointError(str(e)) from None
-    cfg, payload = ckpt.load_config(run_dir)
     if physics is not None:
         cfg = cfg.replace(physics=physics)
     # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
@@ -129,7 +130,10 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     cfg = cfg.replace(buffer_size=1, n_demos=0)
     env = make_env(cfg, test_env_overrides(cfg.task, payload.get("env_overrides")))
     fns = make_train_fns(env, cfg)
-    state, step = ckpt.restore(run_dir, fns.init(), step, restore_buffer=False, best=best)
+    try:   # the newest readable checkpoint (a warning for each unreadable newer one)
+        state, step = restore_readable(run_dir, fns.init(), step, best=best)
+    except ckpt.CheckpointError as e:
+        raise NoCheckpointError(str(e)) from None
     return Policy(run_dir, int(step), cfg, payload, env, fns, state, best=bool(best))
 
 
@@ -183,12 +187,24 @@ def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
     records [T, n, ...], first states, desired goals [n, 2, 3])."""
     import jax
 
-    from daddpg_jax.algo import acting
-    from mjx_envs import observation as obs_lib
 
     key_ = (id(policy.env), id(policy.fns), n, tuple(key_shape), np.dtype(key_dtype).str)
     if key_ in _ROLLOUTS:
         return _ROLLOUTS[key_]
+    keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
+    fn = jax.jit(_rollout_program(policy)).lower(policy.state, keys).compile()   # before any
+    _ROLLOUTS[key_] = fn                                                  # watchdog runs
+    return fn
+
+
+def _rollout_program(policy: Policy):
+    """(state, reset keys [n, 2]) -> (per-step records [T, n, ...], first states, desired goals
+    [n, 2, 3]): the function that ``_rollout_fn`` compiles."""
+    import jax
+
+    from daddpg_jax.algo import acting
+    from mjx_envs import observation as obs_lib
+
     env, act = policy.env, policy.fns.act
 
     def positions(data):   # true object centre [N, 3] and grip points [N, 2, 3]
@@ -214,10 +230,7 @@ def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
                      object=obj, grip=grip)
         return tr, first, s0.obs["desired_goal"]
 
-    keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
-    fn = jax.jit(run).lower(policy.state, keys).compile()   # compiled before any watchdog runs
-    _ROLLOUTS[key_] = fn
-    return fn
+    return run
 
 
 def run_episodes(policy: Policy, keys, chunk: int | None = None,
@@ -250,6 +263,22 @@ def _trim(out, m: int):
     tr, first, goal = out
     return ({k: np.asarray(v)[:, :m] for k, v in tr.items()},
             {k: np.asarray(v)[:m] for k, v in first.items()}, np.asarray(goal)[:m])
+
+
+def check_episodes_fit(policy: Policy, episodes: int) -> None:
+    """ConfigError (one line) when the outputs of `episodes` episodes (kept on the host, every
+    chunk's) and their env states cannot fit in memory, sized from shapes (nothing is
+    allocated or compiled): call before making the episodes' keys."""
+    import jax
+
+    from daddpg_jax.running import resources
+
+    key = jax.ShapeDtypeStruct((2,), np.uint32)
+    out = jax.eval_shape(_rollout_program(policy), policy.state,
+                         jax.ShapeDtypeStruct((1, 2), np.uint32))
+    one = jax.eval_shape(policy.env.reset, key)
+    nbytes = episodes * (resources.tree_bytes(out) + 2 * resources.tree_bytes(one) + 8)
+    resources.check_fits(f"evaluating {episodes:,} episodes", nbytes, "lower --episodes")
 
 
 def _metrics_row(run_dir: str, epoch: int) -> dict | None:
@@ -288,6 +317,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
         watchdog = WATCHDOG_SECONDS if default_chunk(physics) is not None else None
     if watchdog is not None and not watchdog > 0:
         raise ValueError(f"watchdog must be > 0 seconds, 'auto' or None, got {watchdog!r}")
+    check_episodes_fit(policy, int(episodes))
     t0 = time.perf_counter()
     # the trainer's evaluation episodes: the same reset keys, whatever the chunk size
     keys = np.asarray(acting.episode_keys(jax.random.PRNGKey(seed), int(episodes)))
@@ -391,21 +421,58 @@ def write_video(policy: Policy, traj: dict, path: str, n_episodes: int = 3, widt
                 height: int = 360) -> str:
     """Writes the frames of ``render_frames`` as an mp4 (imageio + imageio-ffmpeg). Without an
     mp4 writer it writes a GIF next to ``path`` instead. Returns the path written."""
+    frames = render_frames(policy, traj, n_episodes, width, height)
+    return write_frames(path, frames, int(round(1.0 / policy.env.dt)))
+
+
+def write_frames(path: str, frames: list, fps: int) -> str:
+    """Writes RGB frames as an mp4 (imageio + imageio-ffmpeg), or a GIF when `path` ends in
+    .gif or no mp4 writer is installed (beside `path`). Returns the path written."""
     import imageio.v2 as imageio
 
-    frames = render_frames(policy, traj, n_episodes, width, height)
-    fps = int(round(1.0 / policy.env.dt))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     if path.lower().endswith(".gif"):
         imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
         return path
     try:
-        with warnings.catch_warnings():
-            # imageio-ffmpeg starts ffmpeg with subprocess: Python warns about fork + JAX threads
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with _no_fork_hooks():
             imageio.mimsave(path, frames, fps=fps, macro_block_size=8)
         return path
     except Exception:  # noqa: BLE001 (no ffmpeg backend)
         alt = os.path.splitext(path)[0] + ".gif"
         imageio.mimsave(alt, frames, duration=1000.0 / fps, loop=0)
         return alt
+
+
+@contextlib.contextmanager
+def _no_fork_hooks():
+    """imageio-ffmpeg starts ffmpeg with a ``preexec_fn`` (to keep Ctrl-C from it), which makes
+    Python run its fork hooks, and JAX's hook warns that os.fork() and its threads deadlock.
+    ffmpeg is exec'd at once, and without the preexec_fn (IMAGEIO_FFMPEG_NO_PREVENT_SIGINT)
+    the child is started without running any hook: no warning, nothing to hide."""
+    old = os.environ.get("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT")
+    os.environ["IMAGEIO_FFMPEG_NO_PREVENT_SIGINT"] = "1"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT", None)
+        else:
+            os.environ["IMAGEIO_FFMPEG_NO_PREVENT_SIGINT"] = old
+
+
+VIDEO_EPISODES = 2
+"""test episodes in each --video-every video"""
+
+
+def epoch_video(policy: Policy, path: str, n_episodes: int = VIDEO_EPISODES,
+                width: int = 320, height: int = 240):
+    """The first `n_episodes` test episodes of the run's evaluation seed, rendered to `path`
+    (`write_frames`). Returns (path written, frames, fps); RenderUnavailable without a
+    renderer or without imageio."""
+    if importlib.util.find_spec("imageio") is None:
+        raise RenderUnavailable("imageio is not installed (pip install 'daddpg-jax[video]')")
+    _, traj = evaluate(policy, n_episodes)
+    frames = render_frames(policy, traj, n_episodes, width, height)
+    fps = int(round(1.0 / policy.env.dt))
+    return write_frames(path, frames, fps), frames, fps

@@ -24,6 +24,27 @@ COLUMNS = ("success_rate", "success_ci95_low", "success_ci95_high", "arm_contact
 """result columns of perturbation.csv, after one column per perturbation of the grid"""
 
 
+AXIS_LABELS = {
+    "obs_noise": "observation noise std (m)",
+    "obs_dropout": "observation dropout (probability per step)",
+    "obs_bias": "observation bias (m, one offset per episode)",
+    "obs_period": "observation period (control steps)",
+    "latency": "action latency (control steps)",
+    "object_mass": "object mass change (fraction, x (1 + v))",
+    "object_size": "object half-size change (m)",
+    "object_friction": "object friction change (fraction, x (1 + v))",
+    "table_height": "table height change (m)",
+    "base_offset": "arm base offset (m)",
+    "base_yaw": "arm base yaw (degrees)",
+    "finger_force": "finger force change (fraction, x (1 + v))",
+    "action_scale": "action scale change (fraction, x (1 + v))",
+}
+"""x-axis label (with its unit) of each perturbation in perturbation.png; the fields' meaning:
+mjx_envs/perturb.py and mjx_envs/randomize.py"""
+
+ERROR_BARS = "error bars: 95% Wilson interval of the success rate"
+
+
 def parse_grid(task: str, items: list[str]) -> dict[str, list]:
     """``KEY=V1,V2,...`` items -> {field: [values]} (each value checked against the task's
     schema); raises schema.ConfigError."""
@@ -100,13 +121,14 @@ def write_outputs(rows: list[dict], grid: dict[str, list], out_dir: str, meta: d
     return paths
 
 
-def _plot(rows: list[dict], grid: dict[str, list], path: str, title: str) -> None:
-    """Success (with its 95 % interval) against each perturbation, the others at their first
-    value."""
+def perturbation_figure(rows: list[dict], grid: dict[str, list], title: str = ""):
+    """Success (with its 95 % Wilson interval) against each perturbation, the others at their
+    first value; axes with units, integer ticks for integer fields."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     keys = list(grid)
     fig, axes = plt.subplots(1, len(keys), figsize=(3.6 * len(keys), 3.2), squeeze=False)
@@ -118,13 +140,22 @@ def _plot(rows: list[dict], grid: dict[str, list], path: str, title: str) -> Non
         err = [[r["success_rate"] - r["success_ci95_low"] for r in sel],
                [r["success_ci95_high"] - r["success_rate"] for r in sel]]
         ax.errorbar(x, y, yerr=err, marker="o", capsize=3)
-        ax.set_xlabel(key)
+        ax.set_xlabel(AXIS_LABELS.get(key, key), fontsize=8)
+        if all(isinstance(v, int) and not isinstance(v, bool) for v in grid[key]):
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
         if others:
             ax.set_title(", ".join(f"{k}={v}" for k, v in others.items()), fontsize=8)
-    axes[0][0].set_ylabel("test success")
-    fig.suptitle(title, fontsize=10)
+    axes[0][0].set_ylabel("test success rate")
+    fig.suptitle(f"{title}\n{ERROR_BARS}" if title else ERROR_BARS, fontsize=9)
     fig.tight_layout()
+    return fig
+
+
+def _plot(rows: list[dict], grid: dict[str, list], path: str, title: str) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = perturbation_figure(rows, grid, title)
     fig.savefig(path, dpi=100)
     plt.close(fig)

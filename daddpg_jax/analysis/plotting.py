@@ -33,23 +33,60 @@ def _mpl():
     return plt
 
 
-def plot_learning_curve(rows: Sequence[dict], out: str, title: str = "") -> str:
-    """Test success (and arm-contact rate) vs env steps for one run."""
+def _col(rows: Sequence[dict], key: str) -> np.ndarray:
+    def num(v):
+        try:
+            return float(v)
+        except (TypeError, ValueError):
+            return math.nan
+
+    return np.array([num(r.get(key)) for r in rows])
+
+
+def learning_curve_figure(rows: Sequence[dict], title: str = ""):
+    """The figure of ``plot_learning_curve``: a success panel (test and train success, test
+    arm-contact rate) over a losses panel (critic and actor loss, mean Q on its own axis), both
+    against env steps, with a second x axis (top) in wall-clock seconds."""
     plt = _mpl()
-    x = np.array([float(r["env_steps"]) for r in rows])
-    s = np.array([float(r["test_success_rate"]) for r in rows])
-    c = np.array([float(r["test_arm_contact_rate"]) for r in rows])
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
-    ax.plot(x, s, "o-", label="test success rate", color="tab:blue")
-    ax.plot(x, c, "s--", label="arm-contact rate (test)", color="tab:red", alpha=0.7)
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("rate")
-    ax.set_ylim(-0.02, 1.02)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    x, wall = _col(rows, "env_steps"), _col(rows, "wall_time")
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6.4), dpi=110, sharex=True)
+    top.plot(x, _col(rows, "test_success_rate"), "o-", label="test success rate",
+             color="tab:blue", ms=3)
+    top.plot(x, _col(rows, "train_success_rate"), "-", label="train success rate (exploring)",
+             color="tab:blue", alpha=0.4)
+    top.plot(x, _col(rows, "test_arm_contact_rate"), "s--", label="arm-contact rate (test)",
+             color="tab:red", alpha=0.7, ms=3)
+    top.set_ylabel("rate (fraction of episodes)")
+    top.set_ylim(-0.02, 1.02)
+    top.legend(loc="best", fontsize=8)
+    bottom.plot(x, _col(rows, "critic_loss"), "-", label="critic loss", color="tab:purple")
+    bottom.plot(x, _col(rows, "actor_loss"), "-", label="actor loss (= -Q of its actions)",
+                color="tab:green")
+    bottom.set_ylabel("loss (mean over the epoch's updates)")
+    bottom.set_xlabel("env steps")
+    q_ax = bottom.twinx()
+    q_ax.plot(x, _col(rows, "mean_q"), ":", label="mean Q", color="tab:gray")
+    q_ax.set_ylabel("mean Q")
+    lines = bottom.get_legend_handles_labels()
+    q_lines = q_ax.get_legend_handles_labels()
+    bottom.legend(lines[0] + q_lines[0], lines[1] + q_lines[1], loc="best", fontsize=8)
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    if len(x) >= 2 and np.all(np.diff(x) > 0) and np.all(np.isfinite(wall)):
+        # wall clock as a second x axis: the epochs' (env steps, wall time) pairs, interpolated
+        sec = top.secondary_xaxis("top", functions=(lambda v: np.interp(v, x, wall),
+                                                    lambda v: np.interp(v, wall, x)))
+        sec.set_xlabel("wall clock (s)")
     if title:
-        ax.set_title(title)
+        fig.suptitle(title)
     fig.tight_layout()
+    return fig
+
+
+def plot_learning_curve(rows: Sequence[dict], out: str, title: str = "") -> str:
+    """One run's learning curve (``learning_curve_figure``) as a PNG."""
+    plt = _mpl()
+    fig = learning_curve_figure(rows, title)
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     fig.savefig(out)
     plt.close(fig)
@@ -79,6 +116,24 @@ def truncate(rows: Sequence[dict], max_wall: float | None = None,
     return [r for r in rows
             if (max_wall is None or float(r["wall_time"]) <= max_wall)
             and (max_env_steps is None or float(r["env_steps"]) <= max_env_steps)]
+
+
+def repeated_seeds(runs: dict[str, Sequence[str]]) -> list[str]:
+    """One message per group (label -> run paths) in which two runs have the same seed (from
+    their config.json): such a group's band and mean are not over independent seeds."""
+    out = []
+    for label, paths in runs.items():
+        by_seed: dict = {}
+        for p in paths:
+            seed = run_config(p).get("seed")
+            if seed is not None:
+                by_seed.setdefault(seed, []).append(p)
+        for seed, ps in by_seed.items():
+            if len(ps) > 1:
+                out.append(f"group {label!r} has {len(ps)} runs with seed {seed} "
+                           f"({', '.join(ps)}): its mean and band are not over independent "
+                           "seeds")
+    return out
 
 
 def run_config(path: str) -> dict:
@@ -164,10 +219,14 @@ def plot_runs(groups: dict[str, Sequence[Sequence[dict]]], out: str, title: str 
         color = colors[gi % len(colors)]
         n = len(runs)
         name = f"{label} (n={n})" if n > 1 else label
+        fewer = agg["n"] < n     # epochs that not every run of the group reached
         for ax, (xk, yk, _, _) in zip(axes, panels):
             x, y = agg[xk], agg[yk]
             ax.plot(x, y["mean"], "-", color=color, lw=1.8, label=name,
                     marker="o" if len(x) <= 30 else None, ms=3)
+            if fewer.any():
+                ax.plot(x[fewer], y["mean"][fewer], linestyle="none", marker="o", ms=6,
+                        mfc="white", mec=color, mew=1.5)
             if n > 1:
                 ax.fill_between(x, np.clip(y["lo"], 0, 1), np.clip(y["hi"], 0, 1), color=color,
                                 alpha=0.2, lw=0)
@@ -177,8 +236,10 @@ def plot_runs(groups: dict[str, Sequence[Sequence[dict]]], out: str, title: str 
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     several = any(len(r) > 1 for r in groups.values())
+    partial = any((aggregate(r, band)["n"] < len(r)).any() for r in groups.values())
+    note = "; open circles: mean of fewer runs" if partial else ""
     axes[0].legend(loc="lower right", fontsize=8,
-                   title=f"mean, band {band_name}" if several else None, title_fontsize=8)
+                   title=f"mean, band {band_name}{note}" if several else None, title_fontsize=8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -44,7 +44,7 @@ from mjx_envs.settings import PHYSICS  # noqa: E402
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="evaluate.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by experiments/run.py")
     p.add_argument("--step", type=int, default=None,
@@ -213,10 +213,15 @@ def main(argv=None) -> int:
         return 2
     opts = dict(chunk="auto" if args.chunk is None else args.chunk,
                 watchdog="auto" if args.watchdog is None else (args.watchdog or None))
+    from mjx_envs.schema import ConfigError
+
     try:
         if len(policies) > 1:
             return _compare(policies, args, opts)
         return _evaluate_one(next(iter(policies.values())), args, opts)
+    except ConfigError as e:   # e.g. sizes that cannot fit in memory, refused before allocating
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except evaluation.EngineHang as e:
         # the hung engine thread cannot be stopped, and interpreter shutdown could wait on it
         print(f"error: {e}; try a smaller --chunk or --physics c", file=sys.stderr, flush=True)

@@ -45,7 +45,7 @@ def _table_row(run: str, label: str, rows: list, cfg: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="plot.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-plot", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", metavar="RUN_DIR",
                    help="run directories (or metrics.csv files)")
@@ -78,6 +78,7 @@ def main(argv=None) -> int:
         group_summary,
         plot_runs,
         read_metrics,
+        repeated_seeds,
         run_config,
         run_label,
         summary_columns,
@@ -85,6 +86,7 @@ def main(argv=None) -> int:
     )
 
     groups: dict = {}
+    paths: dict = {}
     table = []
     for i, run in enumerate(args.runs):
         try:
@@ -99,7 +101,16 @@ def main(argv=None) -> int:
             return 2
         label = args.labels[i] if args.labels else run_label(run)
         groups.setdefault(label, []).append(rows)
+        paths.setdefault(label, []).append(run)
         table.append((run, label, rows, run_config(run)))
+    for msg in repeated_seeds(paths):
+        print(f"warning: {msg}", file=sys.stderr)
+    for label, runs in groups.items():
+        lengths = sorted({len(r) for r in runs})
+        if len(lengths) > 1:
+            print(f"warning: group {label!r}: runs have {', '.join(map(str, lengths))} epochs; "
+                  f"after epoch {lengths[0]} its mean is over fewer runs (open circles)",
+                  file=sys.stderr)
     out = plot_runs(groups, args.out, title=args.title, band=args.band)
     if args.table:
         from daddpg_jax.analysis.reproduce import FINAL_COLUMNS

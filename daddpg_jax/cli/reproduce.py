@@ -25,7 +25,7 @@ from mjx_envs.settings import TASKS
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="reproduce.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-reproduce", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", required=True, choices=TASKS,
                    help="task to run")

@@ -53,7 +53,7 @@ import time
 def _parser() -> argparse.ArgumentParser:
     from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S
 
-    p = argparse.ArgumentParser(prog="robot_client.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-robot-client", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--server", default="http://127.0.0.1:8000", help="policy service URL")
     p.add_argument("--task", default=None,

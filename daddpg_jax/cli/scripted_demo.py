@@ -23,18 +23,27 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--task", required=True, choices=["push", "pickup", "pot"])
-    p.add_argument("--episodes", type=int, default=4)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--physics", default="c", choices=["c", "mjx", "auto"])
+    p = argparse.ArgumentParser(prog="daddpg-scripted-demo", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", required=True, choices=["push", "pickup", "pot"],
+                   help="task whose scripted controller to run (reach has none)")
+    p.add_argument("--episodes", type=int, default=4,
+                   help="episodes rolled out at once, one reset key each (default 4)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the episodes' reset keys (default 0)")
+    p.add_argument("--physics", default="c", choices=["c", "mjx", "auto"],
+                   help="physics engine: c = MuJoCo's C engine (default), mjx, or auto (MJX on "
+                        "an accelerator, C on a CPU)")
     p.add_argument("--policy", default="scripted", choices=["scripted", "zero"],
                    help="the task's scripted controller (default) or all-zero actions")
     p.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                    help="override an env field of the task's default_config(); repeatable")
-    p.add_argument("--video", default=None, help="write an mp4 (or gif) of episode 0")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--video", default=None, metavar="OUT.mp4",
+                   help="write an mp4 of episode 0 (a GIF for a .gif name, or when no mp4 "
+                        "writer is installed); needs MUJOCO_GL=egl and imageio")
+    p.add_argument("--width", type=int, default=640, help="video width, pixels (default 640)")
+    p.add_argument("--height", type=int, default=480,
+                   help="video height, pixels (default 480)")
     args = p.parse_args(argv)
 
     if args.episodes < 1:
@@ -84,11 +93,12 @@ def main(argv=None) -> int:
 
     if args.video:
         try:
-            import imageio.v2 as imageio
+            import imageio.v2 as imageio  # noqa: F401  (optional extra: checked before rendering)
         except ImportError:
             print("--video needs imageio (pip install imageio imageio-ffmpeg); no video written",
                   file=sys.stderr)
             return 1
+        from daddpg_jax.analysis.evaluation import write_frames
         from mjx_envs.render import Renderer
 
         try:
@@ -99,16 +109,11 @@ def main(argv=None) -> int:
             return 1
         frames = [r.frame(qpos[t, 0], goal[t, 0], mocap[t, 0]) for t in range(len(qpos))]
         r.close()
-        fps = int(round(1.0 / env.dt))
-        try:
-            imageio.mimsave(args.video, frames, fps=fps)
-        except Exception as e:  # e.g. mp4 without imageio-ffmpeg
-            alt = os.path.splitext(args.video)[0] + ".gif"
-            print(f"could not write {args.video} ({e}); install imageio-ffmpeg for mp4. "
-                  f"Writing {alt} instead.", file=sys.stderr)
-            imageio.mimsave(alt, frames, duration=1.0 / fps)
-            args.video = alt
-        print(f"wrote {args.video} ({len(frames)} frames)")
+        written = write_frames(args.video, frames, int(round(1.0 / env.dt)))
+        if written != args.video:
+            print(f"could not write {args.video} (install imageio-ffmpeg for mp4); wrote "
+                  f"{written} instead", file=sys.stderr)
+        print(f"wrote {written} ({len(frames)} frames)")
     return 0
 
 

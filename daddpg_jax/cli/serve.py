@@ -31,9 +31,10 @@ def main(argv=None) -> int:
         REQUEST_TIMEOUT_S,
     )
 
-    p = argparse.ArgumentParser(prog="serve.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-serve", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("policy", help="exported .npz (daddpg-export)")
+    p.add_argument("policy", help="exported policy, .npz or .onnx (daddpg-export; .onnx runs in "
+                                  "onnxruntime: pip install 'daddpg-jax[onnx]')")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0 = any free)")
     p.add_argument("--max-body", type=int, default=MAX_BODY,
@@ -53,7 +54,7 @@ def main(argv=None) -> int:
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
     args = p.parse_args(argv)
 
-    from daddpg_jax.deploy import NumpyPolicy, PolicyFormatError
+    from daddpg_jax.deploy import PolicyFormatError
     from daddpg_jax.deploy.client import read_token
     from daddpg_jax.deploy.server import PolicyServer, ServiceLimits
 
@@ -65,8 +66,10 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    from daddpg_jax.deploy.onnx_policy import load_policy  # .npz or .onnx, by extension
+
     try:
-        policy = NumpyPolicy.load(args.policy)
+        policy = load_policy(args.policy)
     except (FileNotFoundError, PolicyFormatError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

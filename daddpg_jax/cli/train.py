@@ -80,9 +80,11 @@ def _field_lines(cls, objs: dict) -> list:
 
 
 def build_parser(device: str | None = None):
-    from daddpg_jax.algo.config import current_device
+    from daddpg_jax.algo.config import guess_device
 
-    device = device or current_device()
+    # --help and argument errors stay JAX-free: the device JAX would pick, guessed from what is
+    # installed (the run itself asks JAX: resolve -> build_config)
+    device = device or guess_device()
     p = argparse.ArgumentParser(
         prog="daddpg-train", description=__doc__, epilog=help_epilog(device),
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -144,7 +146,20 @@ def build_parser(device: str | None = None):
     p.add_argument("--stop-at-success", type=float, default=None, metavar="RATE",
                    help="stop after the first epoch whose test success rate is at least RATE "
                         "(e.g. 0.9: time-to-target benchmarks)")
-    p.add_argument("--no-progress", action="store_true", help="disable the progress bar")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar, only one line per epoch (the default when stderr is "
+                        "not a terminal)")
+    p.add_argument("--no-tensorboard", action="store_true",
+                   help="do not write TensorBoard event files (RUN_DIR/tensorboard; default: "
+                        "every metrics.csv column against env steps, and the config as text)")
+    p.add_argument("--wandb", nargs="?", const="daddpg-jax", default=None, metavar="PROJECT",
+                   help="also log to Weights & Biases, project PROJECT (default daddpg-jax); "
+                        "needs the optional extra: pip install 'daddpg-jax[wandb]'; "
+                        "WANDB_MODE=offline logs to RUN_DIR/wandb without an account")
+    p.add_argument("--video-every", type=int, default=0, metavar="N",
+                   help="every N epochs, render test episodes to RUN_DIR/videos/epoch_N.mp4 "
+                        "and to TensorBoard (needs MUJOCO_GL=egl and imageio; without a "
+                        "renderer: one warning, training goes on; default 0 = never)")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (default: one line)")
     _add_distributed_flags(p)
@@ -193,7 +208,10 @@ def _recorded(path: str):
     run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
     if not os.path.exists(os.path.join(run_dir, "config.json")):
         raise ConfigError(f"{path}: no config.json there")
-    cfg, payload = ckpt.load_config(run_dir)
+    try:
+        cfg, payload = ckpt.load_config(run_dir)
+    except ckpt.ConfigFileError as e:
+        raise ConfigError(str(e)) from None
     return cfg, dict(payload.get("env_overrides", {}))
 
 
@@ -206,10 +224,10 @@ def _check_out(path: str, force: bool) -> None:
         parent = os.path.dirname(parent)
     if not os.path.isdir(parent):
         raise ConfigError(f"--out {path}: {parent} is a file, not a directory")
-    if not os.path.isdir(path) or not os.listdir(path):
-        return
     from daddpg_jax.running import checkpoint as ckpt
 
+    if ckpt.is_empty_run_dir(path):
+        return
     if not force:
         what = "a run" if ckpt.is_run_dir(path) else "other files"
         raise ConfigError(f"--out {path}: directory is not empty (it holds {what}); continue "
@@ -294,51 +312,133 @@ def _new_run_dir(args, run_dir: str) -> str:
     from daddpg_jax.running import distributed
 
     def check(path):
+        from daddpg_jax.running import checkpoint as ckpt
+
         _check_out(path, args.force)
+        try:   # held until the process ends: a second run on this --out stops here
+            ckpt.lock_run_dir(path)
+        except ckpt.RunLockedError as e:
+            raise ConfigError(str(e)) from None
+        _check_out(path, args.force)   # again, under the lock (two runs started at once)
         return path
 
     return distributed.on_primary(check, run_dir, errors=(ConfigError,))
 
 
 class Progress:
-    """The progress bar: ticks once per cycle (train success, env steps/s) and, in long cycles
-    (>= 200 updates), 10 times during the updates."""
+    """What a run shows while it trains. On a terminal (stderr a TTY): a bar of whole cycles
+    (train success, env steps/s, and in long cycles the share of the cycle's updates done)
+    that starts at the resumed position and reads "compiling" until the first cycle ends.
+    Elsewhere (a log file, a pipe): no bar; a "compiling" line, then one line per epoch."""
 
-    def __init__(self, cfg: TrainConfig, episode_length: int, show: bool = True):
+    def __init__(self, cfg: TrainConfig, episode_length: int, show: bool = True,
+                 tty: bool | None = None):
         from tqdm import tqdm
 
         self.cfg = cfg
+        self.show = show
+        self.tty = sys.stderr.isatty() if tty is None else tty
         # show=False (processes other than 0 of a multi-process job): the same callbacks are
         # compiled into every process's program, and draw nothing
         self.bar = tqdm(total=cfg.n_epochs * cfg.n_cycles, unit="cycle", dynamic_ncols=True,
-                        desc=f"{cfg.task}/{cfg.algo}", disable=not show)
+                        desc=f"{cfg.task}/{cfg.algo}", disable=not (show and self.tty),
+                        file=sys.stderr)
         self.steps_per_cycle = cfg.num_envs * episode_length
         self.update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
         self.t_last = time.perf_counter()
-        self.partial = 0.0   # fraction of the current cycle already shown by update ticks
+        self.updates_done = 0
+        self.compiling = False
+        self.t_compile = None
+        if self.tty:
+            self.bar.set_postfix_str("starting (env, networks)...", refresh=True)
+
+    def start(self, epoch: int):
+        """Before the first cycle: the resumed position, and the compiling phase."""
+        if not self.show:
+            return
+        if epoch > 0:
+            print(f"resuming from epoch {epoch} of {self.cfg.n_epochs}", file=sys.stderr,
+                  flush=True)
+        self.bar.n = epoch * self.cfg.n_cycles
+        self.bar.initial = self.bar.n   # rates count this process's cycles only
+        self.compiling = True
+        self.t_compile = time.perf_counter()
+        if self.tty:
+            self.bar.set_postfix_str("compiling...", refresh=True)
+        else:
+            print("compiling the training epoch (the first one takes longer)...",
+                  file=sys.stderr, flush=True)
 
     def cycle(self, m):
         now = time.perf_counter()
         sps = self.steps_per_cycle / max(now - self.t_last, 1e-9)
         self.t_last = now
-        self.bar.update(max(1.0 - self.partial, 0.0))
-        self.partial = 0.0
-        self.bar.set_postfix(train_success=f"{float(m['success']):.2f}", steps_s=f"{sps:,.0f}",
+        if self.compiling:
+            self.compiling = False
+            sps_text = "-"   # the first cycle's time is mostly compilation
+        else:
+            sps_text = f"{sps:,.0f}"
+        self.updates_done = 0
+        self.bar.set_postfix(train_success=f"{float(m['success']):.2f}", steps_s=sps_text,
                              refresh=False)
+        self.bar.update(1)
 
     def updates(self, n):
-        inc = self.update_tick / self.cfg.n_batches
-        if self.partial + inc < 1.0:
-            self.partial += inc
-            self.bar.update(inc)
+        self.updates_done += self.update_tick
+        share = min(self.updates_done / self.cfg.n_batches, 1.0)
+        self.bar.set_postfix_str(f"updates {share:.0%} of cycle {self.bar.n + 1}", refresh=True)
 
     def epoch(self, row, msg):
         self.bar.n = row["epoch"] * self.cfg.n_cycles
         self.bar.refresh()
-        self.bar.write(msg)
+        if self.tty:
+            self.bar.write(msg, file=sys.stdout)
+        elif self.show:
+            print(msg, flush=True)
 
     def close(self):
         self.bar.close()
+
+
+class _PlainProgress:
+    """Progress when stderr is not a terminal: the "compiling" and resume lines of Progress
+    and one plain line per epoch; no per-cycle output."""
+
+    def __init__(self, bar: Progress):
+        self.inner = bar
+        self.update_tick = 0
+        self.cycle = None
+
+    def start(self, epoch: int):
+        self.inner.start(epoch)
+
+    def epoch(self, row, msg):
+        print(msg, flush=True)
+
+    def close(self):
+        pass
+
+
+def _lock_resumed(run_dir: str) -> None:
+    """Takes the lock of a run to resume (held until the process ends); ConfigError when
+    another process holds it."""
+    from daddpg_jax.running import checkpoint as ckpt
+
+    try:
+        ckpt.lock_run_dir(run_dir)
+    except ckpt.RunLockedError as e:
+        raise ConfigError(str(e)) from None
+
+
+def _loggers(args, run_dir: str) -> list:
+    """The experiment trackers the flags ask for: TensorBoard unless --no-tensorboard, W&B with
+    --wandb (ConfigError when wandb is not installed)."""
+    from daddpg_jax.running import tracking
+
+    out = [] if args.no_tensorboard else [tracking.TensorBoardLogger(run_dir)]
+    if args.wandb:
+        out.append(tracking.WandbLogger(run_dir, project=args.wandb))
+    return out
 
 
 def _epoch_line(row) -> str:
@@ -354,21 +454,48 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.stop_at_success is not None and not 0.0 <= args.stop_at_success <= 1.0:
         parser.error(f"--stop-at-success must be in [0, 1], got {args.stop_at_success}")
+    if args.video_every < 0:
+        parser.error(f"--video-every must be >= 0, got {args.video_every}")
     try:
+        schema.parse_overrides(TrainConfig, args.set, "--set")   # JAX-free: before the device
         cfg, env_over, run_dir = resolve(args, parser, check_out=False)
+        loggers = _loggers(args, run_dir)
         if not args.resume:
             run_dir = _new_run_dir(args, run_dir)
+        elif layout is None or layout.process_id == 0:
+            _lock_resumed(run_dir)
     except ConfigError as e:
         parser.error(str(e))
+    try:
+        return _run(args, layout, cfg, env_over, run_dir, loggers)
+    finally:
+        if layout is None or layout.process_id == 0:
+            from daddpg_jax.running import checkpoint as ckpt
 
+            ckpt.unlock_run_dir(run_dir)
+
+
+def _run(args, layout, cfg, env_over, run_dir, loggers) -> int:
+    """Trains with the resolved flags; the exit code."""
     from daddpg_jax.running.distributed import DistributedError
-    from daddpg_jax.running.runner import CheckpointError, NonFiniteLoss, RunDirError, train
+    from daddpg_jax.running.runner import (
+        CheckpointError,
+        CheckpointSaveError,
+        NonFiniteLoss,
+        RunDirError,
+        train,
+    )
 
     primary = layout is None or layout.process_id == 0
     if primary:
         _print_header(cfg, run_dir)
     T = settings.task_config(cfg.task, **env_over).episode_length
     bar = None if args.no_progress else Progress(cfg, T, show=primary)
+    if bar is not None and not bar.tty and layout is None:
+        # not a terminal: plain lines (on_start, on_epoch) and no per-cycle callbacks (in a
+        # multi-process job every process keeps the same callbacks: the programs must match)
+        bar.close()
+        bar = _PlainProgress(bar)
 
     def on_epoch(row):
         if bar is None:
@@ -376,21 +503,32 @@ def main(argv=None):
         else:
             bar.epoch(row, _epoch_line(row))
 
+    def on_start(epoch):
+        if bar is not None:
+            bar.start(epoch)
+        elif epoch > 0:
+            print(f"resuming from epoch {epoch} of {cfg.n_epochs}", file=sys.stderr, flush=True)
+
     try:
         res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
                     progress=bar.cycle if bar else None, on_epoch=on_epoch,
                     command=" ".join(sys.argv), time_budget_s=args.time_budget,
                     stop_at_success=args.stop_at_success,
                     update_progress=bar.updates if bar and bar.update_tick else None,
-                    update_tick=bar.update_tick if bar else 0, force=args.force)
+                    update_tick=bar.update_tick if bar else 0, force=args.force,
+                    on_start=on_start, loggers=loggers, video_every=args.video_every)
     except NonFiniteLoss as e:
         print(f"error: {e}", file=sys.stderr)
         return 3
-    except (RunDirError, CheckpointError, DistributedError) as e:
+    except CheckpointSaveError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    except (RunDirError, CheckpointError, DistributedError, ConfigError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted; resume with: daddpg-train --resume {run_dir}", file=sys.stderr)
+        print(f"\nstopped: interrupted; resume with: daddpg-train --resume {run_dir}",
+              file=sys.stderr)
         return 130
     except Exception as e:   # noqa: BLE001  (one line unless --debug)
         if args.debug:

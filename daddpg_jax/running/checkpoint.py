@@ -15,13 +15,20 @@ from the seed, and restoring keeps the template's.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
+import fcntl
+import glob
 import importlib.metadata
 import json
+import logging
 import os
 import shutil
 import subprocess
+import sys
+import tempfile
+import traceback
 
 import jax
 import jax.numpy as jnp
@@ -32,8 +39,14 @@ from flax import serialization
 from daddpg_jax.running.host import host_info
 
 RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
-             "checkpoints_best")
-"""what a training run writes in its directory"""
+             "checkpoints_best", "tensorboard", "videos", "wandb")
+"""what a training run writes in its directory (besides LOCK_FILE)"""
+
+LOCK_FILE = ".lock"
+"""RUN_DIR/.lock: the run directory's lock (``lock_run_dir``); kept when the run ends"""
+
+_TMP_PREFIX = ".tmp-"
+"""temporary files of atomic writes: RUN_DIR/.tmp-<name>-<random> (``write_atomic``)"""
 
 
 def checkpoint_dir(run_dir, best: bool = False) -> str:
@@ -56,15 +69,122 @@ def _split(state):
 
 
 def save(run_dir, state, step: int, save_buffer: bool = False, keep: int = 3) -> str:
-    """Saves `state` as checkpoint `step` (blocking until written). Returns its directory."""
+    """Saves `state` as checkpoint `step` (blocking until written). Returns its directory.
+
+    Any failure (a full disk, a write error inside orbax or TensorStore) raises
+    :class:`CheckpointSaveError` with one line naming the cause; what the failed save left
+    (orbax's temporary directory) is deleted, and the checkpoints before stay as they were."""
     tree, buffer = _split(state)
     items = {"state": ocp.args.StandardSave(tree)}
     if save_buffer:
         items["buffer"] = ocp.args.StandardSave(buffer)
-    with _manager(run_dir, keep) as mngr:
-        mngr.save(int(step), args=ocp.args.Composite(**items), force=True)
-        mngr.wait_until_finished()
+    try:
+        with _quiet_failing_save(), _manager(run_dir, keep) as mngr:
+            mngr.save(int(step), args=ocp.args.Composite(**items), force=True)
+            mngr.wait_until_finished()
+    except Exception as e:  # noqa: BLE001 (orbax, TensorStore and OS errors alike)
+        remove_partial(run_dir)
+        last = latest_step(run_dir)
+        where = (f"resume from checkpoint {last}" if last is not None
+                 else "no earlier checkpoint: start the run again")
+        why = root_cause(e, width=160)
+        if _disk_full(e):
+            why = f"no space left on device: {why}"
+        raise CheckpointSaveError(
+            f"could not save checkpoint {int(step)} in {checkpoint_dir(run_dir)} "
+            f"({why}); free space or fix the cause, then {where} with "
+            f"daddpg-train --resume {os.fspath(run_dir)}") from e
     return os.path.join(checkpoint_dir(run_dir), str(int(step)))
+
+
+def _disk_full(e: BaseException) -> bool:
+    """Whether an exception chain says the disk is full (ENOSPC, or TensorStore's
+    RESOURCE_EXHAUSTED with os_error_code 28)."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        text = str(e)
+        if (getattr(e, "errno", None) == 28 or "No space left on device" in text
+                or "os_error_code='28'" in text):
+            return True
+        e = e.__cause__ or e.__context__
+    return False
+
+
+class _DropOrbaxErrors(logging.Filter):
+    """Drops ERROR records about orbax's work (the message or the traceback names orbax)."""
+
+    def filter(self, record):
+        if record.levelno < logging.ERROR:
+            return True
+        text = record.getMessage()
+        if record.exc_info and record.exc_info[2] is not None:
+            text += "".join(traceback.format_tb(record.exc_info[2]))
+        return "orbax" not in text
+
+
+_QUIET_LOGGERS = ("absl", "asyncio", "orbax")
+_QUIET = _DropOrbaxErrors()
+
+
+def _closed_loop(etype, value, tb) -> bool:
+    """Whether an error is 'RuntimeError: Event loop is closed' raised in asyncio's event loop
+    (TensorStore's completion callbacks of a save that orbax gave up on)."""
+    last = tb
+    while last is not None and last.tb_next is not None:
+        last = last.tb_next
+    where = last.tb_frame.f_code.co_filename if last is not None else ""
+    return (etype is RuntimeError and "Event loop is closed" in str(value)
+            and where.endswith(os.path.join("asyncio", "base_events.py")))
+
+
+def _closed_loop_hook(prev):
+    """sys.unraisablehook (TensorStore reports a failed callback as unraisable) that drops the
+    errors of `_closed_loop` and passes everything else to `prev`."""
+    def hook(u):
+        if not _closed_loop(u.exc_type, u.exc_value, u.exc_traceback):
+            prev(u)
+
+    hook._daddpg_closed_loop = True
+    return hook
+
+
+@contextlib.contextmanager
+def _quiet_failing_save():
+    """While orbax saves: a failing save (e.g. a full disk) makes each of orbax's worker threads
+    log the failure with its traceback (absl ERROR records, during and after the save), asyncio
+    log its never-retrieved task errors, and TensorStore's callbacks into the closed event loop
+    print 'Event loop is closed' tracebacks: hundreds of lines for one error, which `save`
+    raises itself and the runner reports in one line. ERROR records that name orbax are dropped
+    during the save, and from then on if it failed; so are the closed-loop tracebacks."""
+    if not getattr(sys.unraisablehook, "_daddpg_closed_loop", False):
+        sys.unraisablehook = _closed_loop_hook(sys.unraisablehook)
+    loggers = [logging.getLogger(n) for n in _QUIET_LOGGERS]
+    for lg in loggers:
+        lg.addFilter(_QUIET)
+    try:
+        yield
+    except BaseException:
+        raise   # the filters stay: orbax's threads go on logging the failure
+    else:
+        for lg in loggers:
+            lg.removeFilter(_QUIET)
+
+
+def root_cause(e: BaseException, width: int = 200) -> str:
+    """'Type: first line' of the innermost exception of e's chain (e.g. TensorStore's or the
+    OS's reason under orbax's wrappers), at most `width` characters."""
+    seen = set()
+    while (e.__cause__ or e.__context__) is not None and id(e) not in seen:
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    lines = str(e).strip().splitlines()
+    text = f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+class CheckpointSaveError(OSError):
+    """A checkpoint could not be written (e.g. the disk is full); the message is one line."""
 
 
 class RunDirError(FileNotFoundError):
@@ -73,6 +193,67 @@ class RunDirError(FileNotFoundError):
 
 class CheckpointError(RuntimeError):
     """No checkpoint of a run can be read; the message says which and why."""
+
+
+class ConfigFileError(RunDirError):
+    """A run's config.json cannot be read (not JSON, not an object, no 'config', bad values);
+    the message names the file."""
+
+
+class RunLockedError(RunDirError):
+    """Another process holds the run directory's lock."""
+
+
+_LOCKS: dict = {}
+"""run directory (absolute path) -> [fd of its lock file, holders] held by this process"""
+
+
+def lock_run_dir(run_dir) -> str:
+    """Takes the lock of `run_dir` (created if missing) for this process: an exclusive
+    ``flock`` on RUN_DIR/.lock, held until :func:`unlock_run_dir` or the process ends (a kill
+    releases it). Raises :class:`RunLockedError` when another process holds it. Re-entrant
+    within a process (each call needs one ``unlock_run_dir``). Returns the lock file's path."""
+    d = os.path.abspath(os.fspath(run_dir))
+    path = os.path.join(d, LOCK_FILE)
+    if d in _LOCKS:
+        _LOCKS[d][1] += 1
+        return path
+    os.makedirs(d, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        try:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+        finally:
+            os.close(fd)
+        raise RunLockedError(f"{d}: another process (pid {holder}) is using this run "
+                             "directory; wait for it to end or choose another --out") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    _LOCKS[d] = [fd, 1]
+    return path
+
+
+def unlock_run_dir(run_dir) -> None:
+    """Releases one hold of `run_dir`'s lock taken by :func:`lock_run_dir` (the lock file
+    stays)."""
+    d = os.path.abspath(os.fspath(run_dir))
+    held = _LOCKS.get(d)
+    if held is None:
+        return
+    held[1] -= 1
+    if held[1] <= 0:
+        del _LOCKS[d]
+        os.close(held[0])   # closing the descriptor releases the flock
+
+
+def is_empty_run_dir(path) -> bool:
+    """Whether `path` is missing, or a directory holding nothing but a run directory's lock
+    file (left by a run that wrote nothing else)."""
+    if not os.path.isdir(path):
+        return not os.path.exists(path)
+    return not [n for n in os.listdir(path) if n != LOCK_FILE]
 
 
 def check_run_dir(run_dir, step: int | None = None, best: bool = False) -> list:
@@ -133,14 +314,19 @@ def save_best(run_dir, step: int) -> str:
         raise FileNotFoundError(f"no checkpoint {step} under {checkpoint_dir(run_dir)}")
     best_dir = checkpoint_dir(run_dir, best=True)
     os.makedirs(best_dir, exist_ok=True)
-    tmp = os.path.join(best_dir, f"{_COPY_PREFIX}{int(step)}")
-    if os.path.exists(tmp):
-        shutil.rmtree(tmp)
-    shutil.copytree(src, tmp, ignore=shutil.ignore_patterns("buffer"))
-    dst = step_dir(run_dir, step, best=True)
-    if os.path.exists(dst):
-        shutil.rmtree(dst)
-    os.rename(tmp, dst)
+    # a new directory of an unpredictable name (never one planted there beforehand)
+    tmp = tempfile.mkdtemp(prefix=f"{_COPY_PREFIX}{int(step)}-", dir=best_dir)
+    try:
+        shutil.copytree(src, tmp, ignore=shutil.ignore_patterns("buffer"), dirs_exist_ok=True)
+        dst = step_dir(run_dir, step, best=True)
+        if os.path.islink(dst) or os.path.isfile(dst):
+            os.remove(dst)
+        elif os.path.exists(dst):
+            shutil.rmtree(dst)
+        os.rename(tmp, dst)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     remove_steps(run_dir, [s for s in all_steps(run_dir, best=True) if s != int(step)],
                  best=True)
     return dst
@@ -160,8 +346,12 @@ def remove_partial(run_dir) -> list:
             continue
         for name in sorted(os.listdir(d)):
             if _ORBAX_TMP in name or name.startswith(_COPY_PREFIX):
-                shutil.rmtree(os.path.join(d, name), ignore_errors=True)
-                gone.append(os.path.join(d, name))
+                p = os.path.join(d, name)
+                if os.path.islink(p):
+                    os.remove(p)
+                else:
+                    shutil.rmtree(p, ignore_errors=True)
+                gone.append(p)
     return gone
 
 
@@ -192,7 +382,9 @@ def is_run_dir(path) -> bool:
 def remove_run_files(run_dir) -> None:
     """Deletes what a training run writes in `run_dir` (RUN_FILES and their temporary files);
     other files stay."""
-    for name in RUN_FILES + ("config.json.tmp", "metrics.csv.tmp", "learning_curve.tmp.png"):
+    temporary = [os.path.basename(p) for p in glob.glob(os.path.join(run_dir, _TMP_PREFIX + "*"))]
+    legacy = ("config.json.tmp", "metrics.csv.tmp", "learning_curve.tmp.png")  # older versions'
+    for name in RUN_FILES + legacy + tuple(temporary):
         p = os.path.join(run_dir, name)
         if os.path.isdir(p) and not os.path.islink(p):
             shutil.rmtree(p)
@@ -203,7 +395,7 @@ def remove_run_files(run_dir) -> None:
 def wipe_run(run_dir) -> None:
     """Deletes the run in `run_dir` (`remove_run_files`), for a new run in its place; refuses
     a non-empty directory that holds no run."""
-    if not os.path.isdir(run_dir) or not os.listdir(run_dir):
+    if is_empty_run_dir(run_dir):
         return
     if not is_run_dir(run_dir):
         raise RunDirError(f"{run_dir!r} is not a training run directory (no config.json "
@@ -319,20 +511,64 @@ def save_config(run_dir, cfg, **extra) -> str:
     return path
 
 
+def temp_path(path, suffix: str = "") -> str:
+    """A new, empty file beside `path` for an atomic write, created with O_EXCL under an
+    unpredictable name (``.tmp-<name>-<random><suffix>``, mode 0600): a file or symlink planted
+    in the directory is never written through. The caller renames it over `path` or deletes
+    it."""
+    d, name = os.path.split(os.path.abspath(os.fspath(path)))
+    fd, tmp = tempfile.mkstemp(prefix=f"{_TMP_PREFIX}{name}-", suffix=suffix, dir=d)
+    os.close(fd)
+    return tmp
+
+
 def write_atomic(path, text: str) -> None:
-    """Writes `text` to `path` through a temporary file and os.replace: a kill at any moment
-    leaves the old file or the new one, never a part."""
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", newline="") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Writes `text` to `path` through a temporary file (`temp_path`) and os.replace: a kill at
+    any moment leaves the old file or the new one, never a part."""
+    d, name = os.path.split(os.path.abspath(os.fspath(path)))
+    fd, tmp = tempfile.mkstemp(prefix=f"{_TMP_PREFIX}{name}-", dir=d)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.lexists(tmp):
+            os.remove(tmp)
+        raise
 
 
 def load_config(run_dir):
-    """Reads RUN_DIR/config.json back into a TrainConfig (and returns the whole payload)."""
+    """Reads RUN_DIR/config.json back into a TrainConfig (and returns the whole payload).
+    A file that is not JSON, not an object with a 'config' object, or holds invalid values
+    raises :class:`ConfigFileError` (one line naming the file); a missing one
+    FileNotFoundError."""
     from daddpg_jax.algo.config import TrainConfig
-    with open(os.path.join(run_dir, "config.json")) as f:
-        payload = json.load(f)
-    return TrainConfig.from_dict(payload["config"]), payload
+
+    path = os.path.join(os.fspath(run_dir), "config.json")
+    try:
+        with open(path) as f:
+            payload = json.load(f)
+    except UnicodeDecodeError as e:
+        raise ConfigFileError(f"{path}: not a readable config.json (not UTF-8 text: {e})") \
+            from None
+    except json.JSONDecodeError as e:
+        raise ConfigFileError(f"{path}: not a readable config.json (invalid JSON: {e})") \
+            from None
+    except IsADirectoryError:
+        raise ConfigFileError(f"{path}: is a directory, not a config.json") from None
+    if not isinstance(payload, dict):
+        raise ConfigFileError(f"{path}: not a run's config.json (a JSON "
+                              f"{type(payload).__name__}, not an object)")
+    if not isinstance(payload.get("config"), dict):
+        what = "has no 'config' entry" if "config" not in payload else "its 'config' is no object"
+        raise ConfigFileError(f"{path}: not a run's config.json ({what})")
+    if not isinstance(payload.get("env_overrides", {}), dict):
+        raise ConfigFileError(f"{path}: its 'env_overrides' is not an object")
+    try:
+        cfg = TrainConfig.from_dict(payload["config"])
+    except (TypeError, ValueError) as e:   # ConfigError is a ValueError
+        raise ConfigFileError(f"{path}: invalid training config ({e})") from None
+    return cfg, payload

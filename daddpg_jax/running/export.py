@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from typing import Any
 
 import numpy as np
@@ -139,15 +140,39 @@ def write_npz(arrays: dict[str, Any], out) -> str:
         raise ExportError(f"output file must end in .npz, got {out!r}")
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
-    tmp = out[:-4] + ".tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, out)
+    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{os.path.basename(out)}-", suffix=".npz", dir=d)
+    try:
+        with os.fdopen(fd, "wb") as f:   # O_EXCL, unpredictable name: nothing planted is used
+            np.savez(f, **arrays)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, out)
+    finally:
+        if os.path.lexists(tmp):
+            os.remove(tmp)
     return out
 
 
+FORMATS = ("npz", "onnx")
+"""export formats: the NumPy .npz (above), or one ONNX graph (daddpg_jax/deploy/onnx_policy.py)"""
+
+
+def export_format(out) -> str:
+    """The format of an output path: 'onnx' for a .onnx name, else 'npz'."""
+    return "onnx" if os.fspath(out).lower().endswith(".onnx") else "npz"
+
+
+def write_export(arrays: dict[str, Any], out) -> str:
+    """Writes the export in the format of its name (`export_format`). Returns the path."""
+    if export_format(out) == "onnx":
+        from daddpg_jax.deploy.onnx_policy import write_onnx  # optional extra [onnx]
+
+        return write_onnx(arrays, out)
+    return write_npz(arrays, out)
+
+
 def export_state(state, cfg, env, out, source: dict | None = None) -> str:
-    """Exports a TrainState held in memory (tests, notebooks) to ``out``."""
-    return write_npz(policy_arrays(state, cfg, env, source), out)
+    """Exports a TrainState held in memory (tests, notebooks) to ``out`` (.npz or .onnx)."""
+    return write_export(policy_arrays(state, cfg, env, source), out)
 
 
 def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str:
@@ -161,16 +186,16 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
 
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.running.runner import make_env, restore_readable
 
     run_dir = os.fspath(run_dir)
     if best and step is not None:
         raise ExportError("give a checkpoint step or best, not both")
     try:
         ckpt.check_run_dir(run_dir, step, best=best)
-    except ckpt.RunDirError as e:
+        cfg, payload = ckpt.load_config(run_dir)
+    except ckpt.RunDirError as e:   # ConfigFileError too: one line naming the file
         raise ExportError(str(e)) from None
-    cfg, payload = ckpt.load_config(run_dir)
     # the standard task (training-only options such as grasped-state starts off): the env the
     # policy is deployed to, and nothing recorded for training is rebuilt
     from mjx_envs.settings import test_overrides
@@ -179,7 +204,10 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
     fns = make_train_fns(env, cfg)
     # abstract template: shapes only, so the (large) replay buffer is never allocated
     template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
-    state, used = ckpt.restore(run_dir, template, step, restore_buffer=False, best=best)
+    try:   # the newest readable checkpoint (a warning for each unreadable newer one)
+        state, used = restore_readable(run_dir, template, step, best=best)
+    except ckpt.CheckpointError as e:
+        raise ExportError(str(e)) from None
     source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used), best=bool(best),
                   git_revision=payload.get("git_revision"),
                   env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict())

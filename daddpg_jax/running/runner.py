@@ -11,6 +11,10 @@ RUN_DIR layout::
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
     checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
                          without the replay buffer
+    tensorboard/         TensorBoard event files (daddpg_jax/running/tracking.py); with --wandb
+                         wandb/, with --video-every videos/
+    .lock                held (flock) by the process using the run directory: a second run on
+                         it stops with RunLockedError
 
 Crash safety (docs/RELIABILITY.md, "Training runs"): after each epoch metrics.csv is rewritten
 whole through a temporary file and ``os.replace``, then the checkpoint is saved (orbax renames
@@ -71,6 +75,14 @@ class NonFiniteLoss(RuntimeError):
 
 RunDirError = ckpt.RunDirError
 CheckpointError = ckpt.CheckpointError
+CheckpointSaveError = ckpt.CheckpointSaveError
+
+STOP_REASONS = {
+    "epochs": "all {n_epochs} epochs done",
+    "time_budget": "time budget of {time_budget_s:g} s used",
+    "stop_at_success": "test success reached {stop_at_success:g} (--stop-at-success)",
+}
+"""why a run stopped (RunResult.stopped) -> the closing line's words"""
 
 
 @dataclass
@@ -81,10 +93,15 @@ class RunResult:
     wall_time: float
     test_success_rate: float
     rows: list = field(default_factory=list)
+    stopped: str = "epochs"
+    """why the run stopped: a key of STOP_REASONS"""
+    why: str = ""
+    """STOP_REASONS[stopped] with the run's values"""
 
     def summary(self) -> str:
+        why = f"; stopped: {self.why}" if self.why else ""
         return (f"run {self.run_dir}: {self.epochs} epochs, {self.env_steps:,} env steps, "
-                f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}")
+                f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}{why}")
 
 
 def warn(msg: str) -> None:
@@ -195,10 +212,17 @@ class _Log:
             _write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
         epoch = int(row["epoch"])
         ckpt.save(self.run_dir, state, epoch, save_buffer=cfg.save_buffer,
-                  keep=cfg.keep_checkpoints)
+                  keep=cfg.keep_checkpoints)   # CheckpointSaveError: one line, run resumable
         if _success(row) > self.best:
             if primary:
-                ckpt.save_best(self.run_dir, epoch)
+                try:
+                    ckpt.save_best(self.run_dir, epoch)
+                except OSError as e:
+                    raise CheckpointSaveError(
+                        f"could not copy checkpoint {epoch} to "
+                        f"{ckpt.checkpoint_dir(self.run_dir, best=True)} ({ckpt.root_cause(e)});"
+                        f" free space or fix the cause, then resume with daddpg-train --resume "
+                        f"{self.run_dir}") from e
             self.best = _success(row)
         dist.barrier(f"daddpg-epoch-{epoch}")
 
@@ -209,7 +233,9 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
           command: str | None = None, time_budget_s: float | None = None,
           env: Any = None, update_progress: Callable[[int], None] | None = None,
           update_tick: int = 0, demo_policy: Callable | None = None,
-          force: bool = False, stop_at_success: float | None = None) -> RunResult:
+          force: bool = False, stop_at_success: float | None = None,
+          on_start: Callable[[int], None] | None = None, loggers: list | None = None,
+          video_every: int = 0) -> RunResult:
     """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
 
     resume: continue the run in ``run_dir`` (see the module docstring); else ``run_dir`` must
@@ -219,6 +245,12 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
     time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
     stop_at_success: stop after the first epoch whose test success rate is at least this
     (within float32 rounding: 90 of 100 episodes reach 0.9).
+    on_start: called once with the epoch the run starts from (0, or the resumed checkpoint's)
+    before the first epoch compiles.
+    loggers: experiment trackers (``daddpg_jax.running.tracking``) fed the config and every
+    CSV row; None = TensorBoard event files in RUN_DIR/tensorboard; [] = none.
+    video_every: every this many epochs, an evaluation video into RUN_DIR/videos and the
+    loggers (0 = never; without a renderer, one warning and training goes on).
     env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
     update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
     demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
@@ -236,6 +268,19 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                           cfg.num_envs, cfg.n_test_episodes)
     dist.on_primary(_prepare_run_dir, run_dir, resume, force,
                     errors=(RunDirError, ValueError, OSError))
+    try:
+        return _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, command,
+                      time_budget_s, env, update_progress, update_tick, demo_policy,
+                      stop_at_success, on_start, loggers, video_every)
+    finally:
+        if dist.is_primary():
+            ckpt.unlock_run_dir(run_dir)
+
+
+def _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, command,
+           time_budget_s, env, update_progress, update_tick, demo_policy, stop_at_success,
+           on_start, loggers, video_every) -> RunResult:
+    """`train` once process 0 holds the run directory's lock."""
     layout = dist.current_layout() if dist.is_multiprocess() else None
     if resume:
         _check_resume_layout(run_dir, layout)
@@ -252,6 +297,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                          eval_env=eval_env)
     if fns.num_devices > 1:
         clock = None
+    check_memory(fns, cfg)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     if resume:
         state, log = _resume(run_dir, state)
@@ -263,6 +309,31 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                              env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
                              command=command, num_agents=variants.get(cfg.algo).num_agents,
                              physics_resolved=getattr(env, "physics", None), **extra)
+    epoch = log.epoch
+    trackers = _open_loggers(loggers, cfg, run_dir, env_overrides, log)
+    try:
+        if on_start is not None and dist.is_primary():
+            on_start(epoch)
+        state, stopped = _epochs(cfg, env, fns, state, clock, log, run_dir, plot, on_epoch,
+                                 time_budget_s, stop_at_success, trackers, video_every,
+                                 eval_env)
+    finally:
+        for t in trackers:
+            t.close()
+    why = STOP_REASONS[stopped].format(n_epochs=cfg.n_epochs, time_budget_s=time_budget_s or 0,
+                                       stop_at_success=stop_at_success or 0)
+    if not log.rows:
+        return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [],
+                         stopped, why)
+    last = log.rows[-1]
+    return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
+                     float(last["wall_time"]), float(last["test_success_rate"]), log.rows,
+                     stopped, why)
+
+
+def _epochs(cfg, env, fns, state, clock, log, run_dir, plot, on_epoch, time_budget_s,
+            stop_at_success, trackers, video_every, eval_env):
+    """The loop of epochs; returns (the last state, why it stopped: a key of STOP_REASONS)."""
     t_start = time.perf_counter()
     epoch = log.epoch
     while epoch < cfg.n_epochs:
@@ -274,18 +345,70 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
             _warn_physics_faults(row)
             if plot:
                 _plot(cfg, run_dir, log.rows)
+            for t in trackers:
+                t.log_row(row)
+            if video_every and epoch % video_every == 0:
+                _epoch_video(cfg, eval_env or env, fns, state, run_dir, epoch,
+                             int(row["env_steps"]), trackers)
             if on_epoch is not None:
                 on_epoch(row)
         if time_budget_s is not None and dist.from_primary(
                 time.perf_counter() - t_start >= time_budget_s):
-            break
+            return state, "time_budget"
         if stop_at_success is not None and reaches(_success(row), stop_at_success):
-            break
-    if not log.rows:
-        return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [])
-    last = log.rows[-1]
-    return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
-                     float(last["wall_time"]), float(last["test_success_rate"]), log.rows)
+            return state, "stop_at_success"
+    return state, "epochs"
+
+
+def check_memory(fns, cfg: TrainConfig) -> None:
+    """Raises ConfigError (one line) when the training state (replay buffer, networks,
+    optimizer moments; sizes from shapes, nothing allocated) cannot fit in memory."""
+    from daddpg_jax.running import resources
+
+    shapes = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
+    nbytes = resources.tree_bytes(shapes)
+    if fns.num_devices > 1 and jax.devices()[0].platform != "cpu":
+        nbytes //= fns.num_devices   # the replay is sharded over the accelerators' memories
+    resources.check_fits(
+        f"the training state (buffer_size={cfg.buffer_size:,} transitions, "
+        f"hidden={','.join(map(str, cfg.hidden))})", nbytes,
+        "lower buffer_size or hidden (--set)")
+
+
+def _open_loggers(loggers, cfg, run_dir, env_overrides, log) -> list:
+    """The run's experiment trackers (process 0 only), started with the config."""
+    if not dist.is_primary():
+        return []
+    from daddpg_jax.running import tracking
+
+    if loggers is None:
+        loggers = [tracking.TensorBoardLogger(run_dir)]
+    for t in loggers:
+        t.start(cfg, env_overrides, resumed_rows=log.rows)
+    return list(loggers)
+
+
+_VIDEO_WARNED: list = []
+
+
+def _epoch_video(cfg, env, fns, state, run_dir, epoch, env_steps, trackers) -> None:
+    """RUN_DIR/videos/epoch_{epoch}.mp4 of test episodes, also given to the trackers; when it
+    cannot be made (no renderer, no imageio, an env without a MuJoCo scene) one warning (once
+    per process) and nothing else."""
+    from daddpg_jax.analysis import evaluation
+
+    policy = evaluation.Policy(run_dir, epoch, cfg, {}, env, fns, state)
+    try:
+        path, frames, fps = evaluation.epoch_video(
+            policy, os.path.join(run_dir, "videos", f"epoch_{epoch:04d}.mp4"))
+    except Exception as e:  # noqa: BLE001 (no EGL, an env without a scene: videos are extra)
+        if not _VIDEO_WARNED:
+            why = str(e) if isinstance(e, evaluation.RenderUnavailable) else ckpt.root_cause(e)
+            warn(f"--video-every: no video ({why}); training goes on without videos")
+            _VIDEO_WARNED.append(True)
+        return
+    for t in trackers:
+        t.log_video(frames, fps, env_steps, path)
 
 
 def _train_epoch(cfg: TrainConfig, env, fns, state, clock, epoch: int, run_dir: str,
@@ -314,9 +437,14 @@ def _plot(cfg: TrainConfig, run_dir: str, rows: list) -> None:
     """learning_curve.png, written to a temporary file and renamed (never torn by a kill)."""
     from daddpg_jax.analysis.plotting import plot_learning_curve
 
-    tmp = os.path.join(run_dir, "learning_curve.tmp.png")
-    plot_learning_curve(rows, tmp, title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs")
-    os.replace(tmp, os.path.join(run_dir, "learning_curve.png"))
+    tmp = ckpt.temp_path(os.path.join(run_dir, "learning_curve.png"), suffix=".png")
+    try:
+        plot_learning_curve(rows, tmp, title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs"
+                                             f" / seed {cfg.seed}")
+        os.replace(tmp, os.path.join(run_dir, "learning_curve.png"))
+    finally:
+        if os.path.lexists(tmp):
+            os.remove(tmp)
 
 
 def _nonfinite_message(run_dir: str, epoch: int) -> str:
@@ -356,7 +484,8 @@ def _check_resume_layout(run_dir: str, layout) -> None:
 
 
 def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
-    """Checks run_dir before anything compiles; with force deletes the run in it."""
+    """Checks run_dir before anything compiles and takes its lock (held until `train` returns;
+    RunLockedError when another process holds it); with force deletes the run in it."""
     if os.path.exists(run_dir) and not os.path.isdir(run_dir):
         raise RunDirError(f"{run_dir!r} is a file, not a run directory")
     if resume:
@@ -365,7 +494,17 @@ def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
         if not os.path.exists(os.path.join(run_dir, "config.json")):
             raise RunDirError(f"{run_dir!r} has no config.json: not a training run directory "
                               "(nothing to resume)")
+    ckpt.lock_run_dir(run_dir)
+    if resume:
         return
+    try:
+        _prepare_new_run_dir(run_dir, force)
+    except BaseException:
+        ckpt.unlock_run_dir(run_dir)
+        raise
+
+
+def _prepare_new_run_dir(run_dir: str, force: bool) -> None:
     if force:
         ckpt.wipe_run(run_dir)
     else:
@@ -387,7 +526,7 @@ def _restore_newest_readable(run_dir: str, template, steps: list):
         try:
             ckpt.verify(run_dir, step)
         except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
-            why = _root_cause(e)
+            why = ckpt.root_cause(e)
         failed = dist.agree_ok(why is None)
         if failed and why is None:
             why = f"unreadable on process {', '.join(map(str, failed))}"
@@ -398,7 +537,7 @@ def _restore_newest_readable(run_dir: str, template, steps: list):
             except Exception as e:  # noqa: BLE001 (as above)
                 if dist.is_multiprocess():
                     raise
-                why = _root_cause(e)
+                why = ckpt.root_cause(e)
         _quiet_failed_reads()
         warn(f"checkpoint {step} ({ckpt.step_dir(run_dir, step)}) cannot be read "
              f"({why}); trying an older one")
@@ -406,13 +545,30 @@ def _restore_newest_readable(run_dir: str, template, steps: list):
     return None, None, bad
 
 
-def _root_cause(e: BaseException, width: int = 200) -> str:
-    """'Type: first line' of the innermost exception of e's chain (TensorStore's reason)."""
-    while (e.__cause__ or e.__context__) is not None:
-        e = e.__cause__ or e.__context__
-    lines = str(e).strip().splitlines()
-    text = f"{type(e).__name__}: {lines[0]}" if lines else type(e).__name__
-    return text if len(text) <= width else text[:width - 3] + "..."
+def restore_readable(run_dir: str, template, step: int | None = None, best: bool = False):
+    """(state, step) for a reader of a run (export, evaluation): checkpoint `step`, or (None)
+    the newest readable one, older ones tried after a warning naming each unreadable one, as
+    `--resume` does; nothing is deleted. CheckpointError (one line) when none can be read."""
+    steps = [int(step)] if step is not None else ckpt.all_steps(run_dir, best)
+    bad = []
+    for s in reversed(steps):
+        try:
+            ckpt.verify(run_dir, s, best)
+            return ckpt.restore(run_dir, template, s, restore_buffer=False, best=best)
+        except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
+            why = ckpt.root_cause(e)
+        _quiet_failed_reads()
+        bad.append((s, why))
+        if s != steps[0]:
+            warn(f"checkpoint {s} ({ckpt.step_dir(run_dir, s, best)}) cannot be read "
+                 f"({why}); using an older one")
+    if not bad:
+        raise CheckpointError(f"run {run_dir} has no checkpoint")
+    if step is not None:
+        raise CheckpointError(f"checkpoint {step} of {run_dir} cannot be read ({bad[0][1]})")
+    tried = ", ".join(str(s) for s, _ in bad)
+    raise CheckpointError(f"no checkpoint of {run_dir} can be read (tried {tried}; newest: "
+                          f"{bad[0][1]})")
 
 
 def _quiet_failed_reads() -> None:
