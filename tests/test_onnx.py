@@ -26,6 +26,7 @@ from daddpg_jax.deploy.onnx_policy import (  # noqa: E402
     OnnxPolicy,
     load_policy,
 )
+from daddpg_jax.deploy.policy import file_sha256  # noqa: E402
 from daddpg_jax.deploy.server import PolicyServer  # noqa: E402
 from daddpg_jax.running.export import policy_arrays, write_export  # noqa: E402
 from mjx_envs import settings  # noqa: E402
@@ -98,7 +99,9 @@ def test_onnxruntime_equals_numpy_policy(tmp_path, envs, task, algo):
     np.testing.assert_allclose(raw, a_ref[:7], rtol=0, atol=1e-5)
     # the same metadata as the .npz, and leading axes as NumpyPolicy takes them
     assert sess.get_modelmeta().custom_metadata_map["meta"] == str(arrays["meta"])
-    assert pol.info() == ref.info()
+    info, want = pol.info(), ref.info()
+    assert info.pop("policy_sha256") == file_sha256(path) != want.pop("policy_sha256")
+    assert info == want
     np.testing.assert_allclose(pol.act(o[0], g[0]), a_ref[0], atol=1e-5)
     assert pol.act_per_arm(o[:3], g[:3]).shape == (3, 2, 4)
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from daddpg_jax.algo import variants
-from daddpg_jax.deploy.policy import NumpyPolicy, PolicyFormatError, _check_input
+from daddpg_jax.deploy.policy import NumpyPolicy, PolicyFormatError, _check_input, file_sha256
 
 OPSET = 17
 INPUTS = ("observation", "desired_goal")
@@ -192,6 +192,7 @@ class OnnxPolicy:
                                            providers=["CPUExecutionProvider"])
         except Exception as e:  # noqa: BLE001 (onnxruntime's load errors)
             raise PolicyFormatError(f"{path!r}: onnxruntime cannot run the graph: {e}") from None
+        reference.sha256 = file_sha256(path)   # /info names the file served: the .onnx
         return cls(reference, session, path)
 
     def act(self, observation, desired_goal) -> np.ndarray:
