@@ -78,6 +78,10 @@ class ArmsError(RuntimeError):
     """The arms cannot be used (no connection, ur_rtde missing); one line."""
 
 
+class ArmsUsageError(ArmsError):
+    """Arguments that cannot select arms (a usage error, exit 2)."""
+
+
 class ArmsStopped(RuntimeError):
     """An arm reports a protective or emergency stop; the run must end (one line)."""
 
@@ -302,6 +306,25 @@ class URArms:
                 g.close()
 
 
+def receive_only(hosts) -> list:
+    """Read-only ``RTDEReceiveInterface`` connections to ``hosts`` (left, right); ArmsError
+    (one line) when ur_rtde is missing or an arm cannot be reached."""
+    try:  # lazy: the optional extra [ur]
+        import rtde_receive
+    except ImportError:
+        raise ArmsError("ur_rtde is not installed: pip install 'daddpg-jax[ur]'") from None
+    out = []
+    for name, host in zip(ARM_NAMES, hosts):
+        try:
+            out.append(rtde_receive.RTDEReceiveInterface(host))
+        except RuntimeError as e:
+            for r in out:
+                r.disconnect()
+            raise ArmsError(f"cannot connect to the {name} arm at {host}: "
+                            f"{' '.join(str(e).split())[:200]}") from None
+    return out
+
+
 def connect_ur(hosts, period: float, dry_run: bool = False, gripper_factory=None) -> URArms:
     """`URArms` on two real controllers (``hosts``: left, right). ``ur_rtde`` is imported here
     (the optional extra ``[ur]``). ArmsError (one line) when it is missing or an arm or gripper
@@ -354,8 +377,8 @@ class ArmsEnv:
         self.episode_length, self.dt = spec.episode_length, spec.dt
         self._target = spec.home_mocap.copy()
         self._goal = np.zeros((NUM_ARMS, 3), np.float32)
-        self._prev_fingers = None
-        self._t = 0
+        self._prev_fingers = self._last_fingers = None
+        self._t, self._fingers_t = 0, 0
 
     # frames
     def to_base_poses(self, target_world) -> np.ndarray:
@@ -380,8 +403,10 @@ class ArmsEnv:
         r = self.arms.read()
         grip, vel, links = self._world(r)
         fingers = r.fingers
+        if self._t != self._fingers_t:  # a new control period: the last one's reading is prev
+            self._prev_fingers, self._fingers_t = self._last_fingers, self._t
+        self._last_fingers = fingers
         prev = fingers if self._prev_fingers is None else self._prev_fingers
-        self._prev_fingers = fingers
         arm = dict(grip_pos=grip.astype(np.float32), grip_vel=vel.astype(np.float32),
                    fingers=fingers.astype(np.float32),
                    finger_vel=((fingers - prev) / self.dt).astype(np.float32),
@@ -413,7 +438,8 @@ class ArmsEnv:
         self.objects.reset(self._qpos)
         self._target = self.spec.home_mocap.copy()
         self.arms.home(self.to_base_poses(self._target))
-        self._t, self._prev_fingers = 0, None
+        self._t, self._fingers_t = 0, 0
+        self._prev_fingers = self._last_fingers = None
         return self.observe()
 
     def finger_ctrl(self, finger_cmd):
@@ -443,3 +469,37 @@ class ArmsEnv:
 
     def close(self):
         self.arms.close()
+
+
+ARMS_KINDS = ("sim", "ur", "ur-sim")
+
+
+def make_env(kind: str, task_cfg, task: str, period: float, bases=None, hosts=None,
+             dry_run: bool = False, base_error=None, exact: bool = True):
+    """The loop's env for ``--arms kind``: ``sim`` the simulator itself; ``ur`` `URArms` on the
+    controllers at ``hosts`` (left, right; reach only: no object source for a real cell is
+    built in); ``ur-sim`` `URArms` on simulated controllers whose bases carry ``base_error``
+    ((offset [2, 3] m, yaw [2] rad)). ``bases``: the robot side's world <- base transforms
+    (`RobotLimits.base_transforms`). ArmsError (one line) when it cannot be made."""
+    from mjx_envs.numpy_env import NumpyDualArmEnv
+
+    if kind not in ARMS_KINDS:
+        raise ArmsUsageError(f"--arms must be one of {', '.join(ARMS_KINDS)}, got {kind!r}")
+    if kind == "sim":
+        if dry_run:
+            raise ArmsUsageError("--dry-run needs --arms ur or ur-sim (the simulator moves "
+                                 "nothing)")
+        return NumpyDualArmEnv(task_cfg, task=task, exact=exact)
+    spec = NumpyDualArmEnv(task_cfg, task=task, exact=exact)
+    if kind == "ur-sim":
+        from daddpg_jax.deploy.ursim import sim_ur_env
+
+        offset, yaw = (None, None) if base_error is None else base_error
+        return sim_ur_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact), period,
+                          bases=bases, offset=offset, yaw=yaw, dry_run=dry_run)
+    if spec.rules.has_object:
+        raise ArmsUsageError(f"--arms ur runs reach only: the {task!r} task needs an object source "
+                        f"(a camera; see docs/DEPLOYMENT.md)")
+    if hosts is None or len(hosts) != 2 or not all(hosts):
+        raise ArmsUsageError("--arms ur needs --ur-hosts LEFT,RIGHT")
+    return ArmsEnv(spec, connect_ur(hosts, period, dry_run=dry_run), bases=bases)

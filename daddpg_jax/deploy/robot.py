@@ -380,7 +380,9 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
     env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a driver with its ``reset`` /
-    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``); client:
+    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``, such as
+    ``daddpg_jax.deploy.arms.ArmsEnv``; when paced, a driver's ``observe()`` is read again at
+    the start of every period so that the policy sees the arms' current state); client:
     ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
     ``deadline_s``, default the limits' deadline), or one to an observation older than
     ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
@@ -424,6 +426,9 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         pacer.restart()
     for step in range(env.episode_length):
         tick = pacer.wait() if pacer is not None else clock()
+        if step and pacer is not None and pcarry is None and hasattr(env, "observe"):
+            res = env.observe()  # arms (deploy.arms.ArmsEnv): read at the period's start
+            seen = res.observation
         captured = getattr(res, "captured_at", None)
         captured = clock() if captured is None else float(captured)
         asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen
