@@ -370,6 +370,16 @@ def _limit_fingers(safety, ctrl, decision):
     return limited
 
 
+def _fresh(env, res, seen, step, pacer, pcarry):
+    """(result, what the policy sees) at a period's start: a paced driver with ``observe()``
+    (real arms, `daddpg_jax.deploy.arms.ArmsEnv`) is read again, so that the policy sees the
+    arms' current state rather than the one read right after the last command."""
+    if step and pacer is not None and pcarry is None and hasattr(env, "observe"):
+        res = env.observe()
+        return res, res.observation
+    return res, seen
+
+
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
@@ -379,10 +389,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a driver with its ``reset`` /
-    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``, such as
-    ``daddpg_jax.deploy.arms.ArmsEnv``; when paced, a driver's ``observe()`` is read again at
-    the start of every period so that the policy sees the arms' current state); client:
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); client:
     ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
     ``deadline_s``, default the limits' deadline), or one to an observation older than
     ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
@@ -426,9 +433,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         pacer.restart()
     for step in range(env.episode_length):
         tick = pacer.wait() if pacer is not None else clock()
-        if step and pacer is not None and pcarry is None and hasattr(env, "observe"):
-            res = env.observe()  # arms (deploy.arms.ArmsEnv): read at the period's start
-            seen = res.observation
+        res, seen = _fresh(env, res, seen, step, pacer, pcarry)
         captured = getattr(res, "captured_at", None)
         captured = clock() if captured is None else float(captured)
         asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen
