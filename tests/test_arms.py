@@ -1,7 +1,7 @@
 """The arms interface (daddpg_jax/deploy/arms.py), the simulated UR controllers
 (daddpg_jax/deploy/ursim.py) and frame calibration (daddpg_jax/deploy/calibrate.py,
 daddpg-calibrate). In-process, no JAX, no MJX; the policy is a hand-built reach controller
-(tests/reach_controller.py). Cost: ~1-4 s per test, ~20 s the module."""
+(tests/reach_controller.py). Cost: ~0.1-3.5 s per test, ~7 s the module."""
 
 from __future__ import annotations
 
