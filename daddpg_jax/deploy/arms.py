@@ -95,6 +95,7 @@ class ArmsReading:
     joints: np.ndarray  # [2, 6] rad
     fingers: np.ndarray  # [2, 2] opening of each finger, m
     captured_at: float  # monotonic seconds (time.perf_counter)
+    finger_speed: np.ndarray | None = None  # [2, 2] m/s, when the grippers report it
 
 
 # -- frames ----------------------------------------------------------------------------------
@@ -155,6 +156,11 @@ class Gripper:
 
     def openings(self) -> tuple[float, float]:
         raise NotImplementedError
+
+    def speeds(self) -> tuple[float, float] | None:
+        """(finger 1, finger 2) opening speeds, m/s, if the gripper reports them; None: the
+        change of the openings over the last control period is used."""
+        return None
 
     def close(self) -> None:
         pass
@@ -260,7 +266,9 @@ class URArms:
         speed = np.array([r.getActualTCPSpeed() for r in self.receives], float)
         q = np.array([r.getActualQ() for r in self.receives], float)
         fingers = np.array([g.openings() for g in self.grippers], float)
-        return ArmsReading(pose, speed, q, fingers, t)
+        speeds = [g.speeds() for g in self.grippers]
+        fs = None if any(v is None for v in speeds) else np.array(speeds, float)
+        return ArmsReading(pose, speed, q, fingers, t, fs)
 
     def servo(self, poses) -> None:
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
@@ -409,7 +417,8 @@ class ArmsEnv:
         prev = fingers if self._prev_fingers is None else self._prev_fingers
         arm = dict(grip_pos=grip.astype(np.float32), grip_vel=vel.astype(np.float32),
                    fingers=fingers.astype(np.float32),
-                   finger_vel=((fingers - prev) / self.dt).astype(np.float32),
+                   finger_vel=(((fingers - prev) / self.dt) if r.finger_speed is None
+                               else r.finger_speed).astype(np.float32),
                    link_points=links.astype(np.float32))
         obj = self.objects.read()
         obs = obs_lib.build_observation(np, arm, obj, self.dt)

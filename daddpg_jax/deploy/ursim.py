@@ -193,6 +193,10 @@ class SimGripper(Gripper):
     def openings(self) -> tuple[float, float]:
         return self.cell.fingers(self.arm)
 
+    def speeds(self) -> tuple[float, float]:
+        sens = obs_lib.read_arm_sensors(np, self.cell.env.sensors, self.cell.env._sens)
+        return tuple(float(x) for x in sens["finger_vel"][self.arm])
+
 
 class SimObjectSource:
     """The cell's object (world frame), placed at the episode's drawn start by ``reset``."""
