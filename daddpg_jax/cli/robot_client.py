@@ -321,6 +321,11 @@ def main(argv=None) -> int:
         client.close()
         if hasattr(env, "close"):
             env.close()  # servoStop, then the connections
+    if hasattr(env, "refused"):
+        out["joint_refusals"] = env.refused
+        if env.refused:
+            _stderr_line(f"joint limits: {env.refused} arm target(s) without a joint solution "
+                         f"within the limits were refused (the arm kept its target)")
     if args.dry_run:
         out["dry_run_commands"] = len(env.arms.sent)
         if args.log:

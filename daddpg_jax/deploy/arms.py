@@ -141,6 +141,46 @@ def link_points_base(q) -> np.ndarray:
     return np.stack(pts)
 
 
+IK_ITERATIONS = 10
+IK_TOLERANCE = (1e-4, 1e-3)
+"""joint_solution: largest position (m) and rotation (rad) error of a solution"""
+JOINT_MARGIN = 0.05
+"""a target whose joint solution comes closer than this to a joint limit is refused, rad"""
+
+
+def _pose_error(T, pose) -> np.ndarray:
+    """[position error, rotation error (rotation vector)] of ``T`` against ``pose`` [6]."""
+    R_goal = robot.rotvec_to_matrix(pose[3:])
+    return np.concatenate([np.asarray(pose[:3]) - T[:3, 3],
+                           robot.matrix_to_rotvec(R_goal @ T[:3, :3].T)])
+
+
+def joint_solution(q0, pose, iterations: int = IK_ITERATIONS):
+    """Joint angles [6] that put the tool centre at ``pose`` [x, y, z, rx, ry, rz] (base
+    frame), by damped least squares from ``q0`` (the current or last solution), or None when
+    it does not converge to `IK_TOLERANCE`."""
+    q = np.asarray(q0, float).copy()
+    pose = np.asarray(pose, float)
+    for _ in range(iterations):
+        err = _pose_error(ur3.forward_kinematics(q), pose)
+        if np.linalg.norm(err[:3]) < IK_TOLERANCE[0] and np.linalg.norm(err[3:]) < \
+                IK_TOLERANCE[1]:
+            return q
+        J = np.zeros((6, 6))
+        for j in range(6):
+            dq = q.copy()
+            dq[j] += 1e-6
+            J[:, j] = (err - _pose_error(ur3.forward_kinematics(dq), pose)) / 1e-6
+        q = q + J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), err)
+    err = _pose_error(ur3.forward_kinematics(q), pose)
+    ok = np.linalg.norm(err[:3]) < IK_TOLERANCE[0] and np.linalg.norm(err[3:]) < IK_TOLERANCE[1]
+    return q if ok else None
+
+
+def within_joint_limits(q) -> bool:
+    return bool(np.all(np.abs(np.asarray(q)) <= ur3.JOINT_LIMIT - JOINT_MARGIN))
+
+
 # -- grippers --------------------------------------------------------------------------------
 
 class Gripper:
@@ -387,6 +427,7 @@ class ArmsEnv:
         self._goal = np.zeros((NUM_ARMS, 3), np.float32)
         self._prev_fingers = self._last_fingers = None
         self._t, self._fingers_t = 0, 0
+        self.refused = 0  # targets refused for want of a joint solution within the limits
 
     # frames
     def to_base_poses(self, target_world) -> np.ndarray:
@@ -409,6 +450,7 @@ class ArmsEnv:
         from mjx_envs.numpy_env import StepResult
 
         r = self.arms.read()
+        self._joints = r.joints
         grip, vel, links = self._world(r)
         fingers = r.fingers
         if self._t != self._fingers_t:  # a new control period: the last one's reading is prev
@@ -449,7 +491,9 @@ class ArmsEnv:
         self.arms.home(self.to_base_poses(self._target))
         self._t, self._fingers_t = 0, 0
         self._prev_fingers = self._last_fingers = None
-        return self.observe()
+        res = self.observe()
+        self._q = np.array(self._joints, float)
+        return res
 
     def finger_ctrl(self, finger_cmd):
         return self.spec.finger_ctrl(finger_cmd)
@@ -460,8 +504,23 @@ class ArmsEnv:
                          self.spec.ws_high)
         return target.astype(np.float32), self.finger_ctrl(a[:, 3])
 
+    def _reachable(self, target):
+        """``target`` [2, 3] with each arm whose pose has no joint solution within the joint
+        limits (`joint_solution`, warm-started from the last one) kept at its previous
+        target; counts those in ``refused``."""
+        poses = self.to_base_poses(target)
+        out = np.array(target, np.float32)
+        for i in range(NUM_ARMS):
+            q = joint_solution(self._q[i], poses[i])
+            if q is None or not within_joint_limits(q):
+                out[i] = self._target[i]
+                self.refused += 1
+            else:
+                self._q[i] = q
+        return out
+
     def step_targets(self, target, ctrl):
-        self._target = np.asarray(target, np.float32).reshape(NUM_ARMS, 3)
+        self._target = self._reachable(np.asarray(target, np.float32).reshape(NUM_ARMS, 3))
         ctrl = np.asarray(ctrl, np.float32).reshape(NUM_ARMS, 2)
         self.arms.grip(ctrl[:, 0])
         self.arms.servo(self.to_base_poses(self._target))
