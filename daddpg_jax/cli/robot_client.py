@@ -1,5 +1,6 @@
-r"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
-service every control period, through the safety layer, and reports the success rate.
+r"""Robot client: the arms (the NumPy simulator, two UR arms, or the UR path on simulated
+controllers) query the policy service every control period, through the safety layer, and the
+client reports the success rate.
 
 Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-serve policy.npz &
@@ -7,6 +8,9 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-robot-client --limits cell.toml --speed-scale 0.25 --episodes 5 --log logs/
   daddpg-robot-client --limits cell.toml --max-speed 0.1 --min-clearance 0.08 --json out.json
   daddpg-robot-client --policy-sha256 HEX --token-file token.txt --episodes 10
+  daddpg-robot-client --arms ur-sim --sim-base-error 0.02,0,0,2,0,-0.02,0,-2 --episodes 20
+  daddpg-robot-client --arms ur --ur-hosts 192.168.1.10,192.168.1.11 --limits cell.toml \
+      --speed-scale 0.1 --episodes 1 [--dry-run]
 
 The robot owns its limits: the workspace box per arm, the speed cap, the arm clearance, the
 control period, the deadline, the finger range and the observation age come from --limits FILE
