@@ -21,8 +21,8 @@ opening of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice t
 
 ``run_episode`` / ``run_episodes`` are the robot client's control loop (policy service ->
 safety layer -> targets), used with ``mjx_envs.numpy_env`` (sim-to-sim) and with UR arms or
-their simulated controllers (``daddpg_jax.deploy.arms``, ``daddpg_jax.deploy.ursim``); ``OutageMonitor``
-reports outages of the service and ends the run when one lasts too long, and
+their simulated controllers (``daddpg_jax.deploy.arms``, ``daddpg_jax.deploy.ursim``);
+``OutageMonitor`` reports outages of the service and ends the run when one lasts too long, and
 ``summarize_episodes`` leaves the episodes with a missed deadline out of the results. See
 docs/DEPLOYMENT.md and docs/RELIABILITY.md.
 """
