@@ -1,5 +1,6 @@
-r"""Sim-to-sim robot client: a plain-MuJoCo NumPy stand-in for the robot queries the policy
-service every control period, through the safety layer, and reports the success rate.
+r"""Robot client: the arms (the NumPy simulator, two UR arms, or the UR path on simulated
+controllers) query the policy service every control period, through the safety layer, and the
+client reports the success rate.
 
 Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-serve policy.npz &
@@ -7,6 +8,9 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-robot-client --limits cell.toml --speed-scale 0.25 --episodes 5 --log logs/
   daddpg-robot-client --limits cell.toml --max-speed 0.1 --min-clearance 0.08 --json out.json
   daddpg-robot-client --policy-sha256 HEX --token-file token.txt --episodes 10
+  daddpg-robot-client --arms ur-sim --sim-base-error 0.02,0,0,2,0,-0.02,0,-2 --episodes 20
+  daddpg-robot-client --arms ur --ur-hosts 192.168.1.10,192.168.1.11 --limits cell.toml \
+      --speed-scale 0.1 --episodes 1 [--dry-run]
 
 The robot owns its limits: the workspace box per arm, the speed cap, the arm clearance, the
 control period, the deadline, the finger range and the observation age come from --limits FILE
@@ -35,9 +39,17 @@ line on stderr, exit code 3. Episodes with a missed deadline are never counted i
 ("excluded_episodes" says how many). stdout holds the JSON summary; stderr ends with a short
 human-readable one.
 
+Arms (--arms): sim (default) steps the NumPy simulator; ur drives two UR arms through ur_rtde
+(pip install 'daddpg-jax[ur]'; --ur-hosts LEFT,RIGHT; reach only), streaming servoL every
+control period (a hold streams the held pose; servoStop on abort or exit); ur-sim runs the same
+UR code on simulated controllers (--sim-base-error: their bases' true error). The limits'
+calibration (daddpg-calibrate) converts between the world and the arms' base frames. --dry-run (ur,
+ur-sim) connects read-only and logs what it would send (--log DIR: dry_run_commands.json).
+
 Exit codes: 0 done; 2 bad limits or arguments, the service unreachable at start, or serving a
 policy the robot refuses (control period, task, action layout, SHA-256); 3 aborted on an outage
-of the service.
+of the service; 4 the arms cannot be reached, or an arm reports a protective or emergency
+stop.
 """
 
 from __future__ import annotations
@@ -51,6 +63,7 @@ import time
 
 
 def _parser() -> argparse.ArgumentParser:
+    from daddpg_jax.deploy.arms import ARMS_KINDS
     from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S
 
     p = argparse.ArgumentParser(prog="daddpg-robot-client", description=__doc__,
@@ -98,6 +111,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="apply a perturbation at this exact value (repeatable): obs_noise (std, "
                         "m), obs_dropout (probability per step), obs_bias (m), obs_period "
                         "(steps), latency (steps); see mjx_envs/perturb.py")
+    p.add_argument("--arms", choices=ARMS_KINDS, default="sim",
+                   help="sim: the simulator (default); ur: two UR arms through ur_rtde "
+                        "(--ur-hosts); ur-sim: the UR path on simulated controllers")
+    p.add_argument("--ur-hosts", default=None, metavar="LEFT,RIGHT",
+                   help="--arms ur: the two controllers' addresses")
+    p.add_argument("--dry-run", action="store_true",
+                   help="--arms ur/ur-sim: connect read-only, log what would be sent, move "
+                        "nothing")
+    p.add_argument("--sim-base-error", default=None, metavar="8 NUMBERS",
+                   help="--arms ur-sim: each simulated base's true error dx,dy,dz (m),yaw "
+                        "(deg), left then right (the robot side uses the limits' calibration)")
     p.add_argument("--json", default=None, help="also write the summary to this JSON file")
     return p
 
@@ -203,20 +227,45 @@ def _check_args(args):
 
     if args.episodes < 1:
         return f"--episodes must be >= 1, got {args.episodes}"
+    if args.arms == "ur" and (args.fast or args.perturb):
+        return "--fast and --perturb are for simulated arms only (--arms sim or ur-sim)"
+    if args.arms != "ur" and args.ur_hosts:
+        return "--ur-hosts needs --arms ur"
+    if args.arms != "ur-sim" and args.sim_base_error:
+        return "--sim-base-error needs --arms ur-sim"
     if args.policy_sha256 is not None and not re.fullmatch(r"[0-9a-f]{64}",
                                                            args.policy_sha256.lower()):
         return "--policy-sha256 must be 64 hexadecimal digits (as sha256sum prints them)"
     return None
 
 
+def _arms_env(args, task_cfg, task: str, robot_limits):
+    """The loop's env for --arms (daddpg_jax.deploy.arms.make_env); raises ArmsError."""
+    from daddpg_jax.deploy.arms import ArmsUsageError, make_env
+
+    base_error = None
+    if args.sim_base_error:
+        from daddpg_jax.cli.calibrate import sim_base_error
+        from daddpg_jax.deploy.calibrate import CalibrationError
+
+        try:
+            base_error = sim_base_error(args.sim_base_error)
+        except CalibrationError as e:
+            raise ArmsUsageError(str(e)) from None
+    hosts = args.ur_hosts.split(",") if args.ur_hosts else None
+    return make_env(args.arms, task_cfg, task, robot_limits.control_period,
+                    bases=robot_limits.base_transforms(), hosts=hosts, dry_run=args.dry_run,
+                    base_error=base_error, exact=not args.float64)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
 
+    from daddpg_jax.deploy.arms import ArmsError, ArmsStopped, ArmsUsageError
     from daddpg_jax.deploy.client import read_token
     from daddpg_jax.deploy.robot import OutageMonitor, Pacer, run_episodes
     from daddpg_jax.deploy.safety import SafetyFilter
     from daddpg_jax.deploy.server import PolicyClient
-    from mjx_envs.numpy_env import NumpyDualArmEnv
     from mjx_envs.schema import ConfigError
 
     bad = _check_args(args)
@@ -256,8 +305,12 @@ def main(argv=None) -> int:
             with open(path, "w") as f:
                 json.dump(log, f)
 
+    try:
+        env = _arms_env(args, task_cfg, task, robot_limits)
+    except ArmsError as e:  # ArmsUsageError: exit 2; the arms cannot be reached: 4
+        print(f"error: {e}", file=sys.stderr)
+        return 2 if isinstance(e, ArmsUsageError) else 4
     client = PolicyClient(args.server, timeout=limits.deadline_s, token=token)
-    env = NumpyDualArmEnv(task_cfg, task=task, exact=not args.float64)
     monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
     pacer = None if args.fast else Pacer(robot_limits.control_period, clock=monitor.clock)
     t0 = time.perf_counter()
@@ -265,9 +318,25 @@ def main(argv=None) -> int:
         out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed,
                            monitor=monitor, perturbation=perturbation, pacer=pacer,
                            max_observation_age=robot_limits.max_observation_age, on_log=on_log)
+    except (ArmsStopped, ArmsError) as e:
+        print(f"error: {e}; the run is stopped", file=sys.stderr)
+        return 4
     finally:
         client.close()
+        if hasattr(env, "close"):
+            env.close()  # servoStop, then the connections
+    if hasattr(env, "refused"):
+        out["joint_refusals"] = env.refused
+        if env.refused:
+            _stderr_line(f"joint limits: {env.refused} arm target(s) without a joint solution "
+                         f"within the limits were refused (the arm kept its target)")
+    if args.dry_run:
+        out["dry_run_commands"] = len(env.arms.sent)
+        if args.log:
+            with open(os.path.join(args.log, "dry_run_commands.json"), "w") as f:
+                json.dump(env.arms.sent, f)
     out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,
+               arms=args.arms, dry_run=args.dry_run,
                algo=info.get("algo"), policy_sha256=info.get("policy_sha256"), seed=args.seed,
                limits=robot_limits.source, speed_scale=args.speed_scale,
                deadline_ms=limits.deadline_s * 1e3, max_step_m=limits.max_step,

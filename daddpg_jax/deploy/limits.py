@@ -69,7 +69,11 @@ class RobotLimits:
     unpaced simulation may allow more, up to ``MAX_DEADLINE``); finger_min /
     finger_max: opening range of each finger; task: the task the robot runs ("" = any);
     max_observation_age: an observation older than this when its answer arrives is treated
-    as a missed deadline (hold).
+    as a missed deadline (hold); calibration: each arm's base pose in the world frame
+    (``{"left": {"base_pos": [x, y, z], "base_rotvec": [rx, ry, rz], "residuals_mm": [...]},
+    "right": {...}}``, written by ``daddpg-calibrate``; None: the nominal
+    `daddpg_jax.deploy.ur3.BASE_POS` / ``BASE_YAW``), used for every conversion between the
+    world and the arms' base frames (`base_transforms`).
     """
 
     workspace_low: tuple = DEFAULT_BOX_LOW
@@ -82,6 +86,7 @@ class RobotLimits:
     finger_max: float = _TASK.finger_stroke
     task: str = ""
     max_observation_age: float = 0.08
+    calibration: Mapping | None = None
     source: str = "built-in defaults"
 
     def __post_init__(self):
@@ -105,6 +110,8 @@ class RobotLimits:
                 low_open=True)
         if not isinstance(self.task, str) or len(self.task) > 64:
             raise LimitsError(f"task must be a short string, got {self.task!r}")
+        if self.calibration is not None:
+            object.__setattr__(self, "calibration", _calibration(self.calibration))
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -241,6 +248,21 @@ class RobotLimits:
                               f"{layout} is not the robot's "
                               f"{(NUM_ARMS * ARM_ACTION, NUM_ARMS, ARM_ACTION)}")
 
+    def base_transforms(self) -> np.ndarray:
+        """World <- base transforms [2, 4, 4] of the arms (left, right): the calibration, else
+        the nominal cell."""
+        from daddpg_jax.deploy import robot, ur3
+
+        if self.calibration is None:
+            return np.stack([ur3.base_transform(a) for a in robot.ARMS])
+        out = np.zeros((NUM_ARMS, 4, 4))
+        for i, arm in enumerate(ARM_KEYS):
+            c = self.calibration[arm]
+            out[i] = np.eye(4)
+            out[i, :3, :3] = robot.rotvec_to_matrix(c["base_rotvec"])
+            out[i, :3, 3] = c["base_pos"]
+        return out
+
     def describe(self, speed_scale: float = 1.0) -> str:
         """One line: the limits in use and where they come from."""
         box = "; ".join(f"{a} {list(lo)}..{list(hi)}" for a, lo, hi in
@@ -251,7 +273,8 @@ class RobotLimits:
                 f"{self.control_period * 1e3:g} ms, deadline {self.deadline * 1e3:g} ms, "
                 f"observation age {self.max_observation_age * 1e3:g} ms, fingers "
                 f"{self.finger_min:g}..{self.finger_max:g} m, task {self.task or 'any'}; "
-                f"workspace (world m) {box}")
+                f"workspace (world m) {box}; bases "
+                f"{'calibrated' if self.calibration else 'nominal (not calibrated)'}")
 
 
 def _no_constant(name):
@@ -270,6 +293,38 @@ def _number(name: str, v, low: float | None = None, high: float | None = None,
     if high is not None and v > high:
         raise LimitsError(f"{name} must be <= {high:g}, got {v:g}")
     return v
+
+
+MAX_RESIDUAL_ROWS = 64
+
+
+def _calibration(v) -> dict:
+    """The checked calibration table (see `RobotLimits`)."""
+    if not isinstance(v, Mapping) or set(v) != set(ARM_KEYS):
+        raise LimitsError("calibration must hold a left and a right table")
+    out = {}
+    for arm in ARM_KEYS:
+        t = v[arm]
+        if not isinstance(t, Mapping) or not {"base_pos", "base_rotvec"} <= set(t) or not (
+                set(t) <= {"base_pos", "base_rotvec", "residuals_mm", "rms_mm"}):
+            raise LimitsError(f"calibration.{arm} must hold base_pos and base_rotvec (and "
+                              f"optionally residuals_mm, rms_mm)")
+        row = {}
+        for key, bound in (("base_pos", MAX_COORD), ("base_rotvec", math.pi + 1e-9)):
+            x = t[key]
+            if not isinstance(x, (list, tuple)) or len(x) != 3:
+                raise LimitsError(f"calibration.{arm}.{key} must be 3 numbers, got {x!r}")
+            row[key] = tuple(_number(f"calibration.{arm}.{key}", c, low=-bound, high=bound)
+                             for c in x)
+        res = t.get("residuals_mm", ())
+        if not isinstance(res, (list, tuple)) or len(res) > MAX_RESIDUAL_ROWS:
+            raise LimitsError(f"calibration.{arm}.residuals_mm must be a list of numbers")
+        row["residuals_mm"] = tuple(_number(f"calibration.{arm}.residuals_mm", r, low=0.0)
+                                    for r in res)
+        if "rms_mm" in t:
+            row["rms_mm"] = _number(f"calibration.{arm}.rms_mm", t["rms_mm"], low=0.0)
+        out[arm] = row
+    return out
 
 
 def _box(name: str, v) -> np.ndarray:

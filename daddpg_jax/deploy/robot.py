@@ -20,8 +20,9 @@ opening of each finger ``(a + 1) / 2 * finger_stroke`` metres (jaw gap = twice t
 ``locked_opening`` when the task locks the fingers (reach, push).
 
 ``run_episode`` / ``run_episodes`` are the robot client's control loop (policy service ->
-safety layer -> targets), used sim-to-sim with ``mjx_envs.numpy_env``; ``OutageMonitor``
-reports outages of the service and ends the run when one lasts too long, and
+safety layer -> targets), used with ``mjx_envs.numpy_env`` (sim-to-sim) and with UR arms or
+their simulated controllers (``daddpg_jax.deploy.arms``, ``daddpg_jax.deploy.ursim``);
+``OutageMonitor`` reports outages of the service and ends the run when one lasts too long, and
 ``summarize_episodes`` leaves the episodes with a missed deadline out of the results. See
 docs/DEPLOYMENT.md and docs/RELIABILITY.md.
 """
@@ -370,6 +371,16 @@ def _limit_fingers(safety, ctrl, decision):
     return limited
 
 
+def _fresh(env, res, seen, step, pacer, pcarry):
+    """(result, what the policy sees) at a period's start: a paced driver with ``observe()``
+    (real arms, `daddpg_jax.deploy.arms.ArmsEnv`) is read again, so that the policy sees the
+    arms' current state rather than the one read right after the last command."""
+    if step and pacer is not None and pcarry is None and hasattr(env, "observe"):
+        res = env.observe()
+        return res, res.observation
+    return res, seen
+
+
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
                 deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
@@ -379,8 +390,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` (or a driver with its ``reset`` /
-    ``command_targets`` / ``finger_ctrl`` / ``step_targets`` / ``target``); client:
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); client:
     ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
     ``deadline_s``, default the limits' deadline), or one to an observation older than
     ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
@@ -424,6 +434,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         pacer.restart()
     for step in range(env.episode_length):
         tick = pacer.wait() if pacer is not None else clock()
+        res, seen = _fresh(env, res, seen, step, pacer, pcarry)
         captured = getattr(res, "captured_at", None)
         captured = clock() if captured is None else float(captured)
         asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen

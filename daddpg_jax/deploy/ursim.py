@@ -1,0 +1,237 @@
+"""A simulated UR controller pair for rehearsals (``daddpg-robot-client --arms ur-sim``): the
+subset of ur_rtde's API that `daddpg_jax.deploy.arms.URArms` calls, standing on the MuJoCo
+simulator (`mjx_envs.numpy_env.NumpyDualArmEnv`), so that the UR implementation runs unchanged.
+
+`SimCell` is the physical cell: one simulator with both arms. Each arm's base is at
+`daddpg_jax.deploy.ur3.BASE_POS` / ``BASE_YAW`` plus a calibration error (``offset`` [2, 3] m,
+``yaw`` [2] rad), applied to the model as `mjx_envs.randomize` does for ``base_offset`` /
+``base_yaw`` (the mounts and the tool orientation move with the base). `SimRTDEControl` and
+`SimRTDEReceive` answer in each arm's true base frame with rotation vectors, the TCP at the
+fingertip centre (the ``grip`` site). The cell advances one control period once both arms have
+received their servoL of the period (the grippers' commands of the period come first), so an
+unpaced run steps exactly like the simulator. `SimGripper` is the simulated gripper and
+`SimObjectSource` the cell's object. A protective or emergency stop can be raised on an arm
+(``cell.protective[i] = True``) to rehearse the stop path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daddpg_jax.deploy import robot, ur3
+from daddpg_jax.deploy.arms import Gripper, base_transform, invert
+from mjx_envs import observation as obs_lib
+from mjx_envs import randomize
+from mjx_envs.settings import OBJECTS
+
+HOME_TOLERANCE = 0.002
+"""moveL: the cell steps until each TCP is within this of its target, m"""
+HOME_MAX_STEPS = 200
+
+
+class SimCell:
+    """Both simulated arms in one simulator; ``env`` a `NumpyDualArmEnv` of the task."""
+
+    def __init__(self, env, offset=None, yaw=None):
+        self.env = env
+        self.offset = np.zeros((2, 3)) if offset is None else np.asarray(offset, float)
+        self.yaw = np.zeros(2) if yaw is None else np.asarray(yaw, float)
+        self.bases = np.stack([base_transform(ur3.BASE_POS[a] + self.offset[i],
+                                              ur3.BASE_YAW[a] + self.yaw[i])
+                               for i, a in enumerate(robot.ARMS)])
+        self.inv = np.stack([invert(T) for T in self.bases])
+        if np.any(self.offset) or np.any(self.yaw):
+            self._move_bases()
+        m = env.model
+        self.joint_adr = np.array([[m.jnt_qposadr[m.joint(f"{p}_j{k + 1}").id]
+                                    for k in range(6)] for p in robot.ARMS])
+        self.grip_site = [m.site(f"{p}_grip").id for p in robot.ARMS]
+        self.targets = env.home_mocap.astype(float).copy()
+        self.ctrl = env.finger_ctrl(np.zeros(2, np.float32)).astype(float)
+        self.pending: set[int] = set()
+        self.protective = [False, False]
+        self.emergency = [False, False]
+        self.steps = 0
+
+    def _move_bases(self):
+        env = self.env
+        obj = OBJECTS.get(env.task)
+        r = randomize.Randomization(base_offset=1.0, base_yaw=1.0)
+        ix = randomize.ModelIndex(env.model, None if obj is None else obj[1], r)
+        params = randomize.nominal_params()
+        params[5:11] = self.offset.reshape(-1)
+        params[11:13] = self.yaw
+        fields = randomize.model_fields(np, ix, params)
+        env.model.body_pos[:] = fields["body_pos"]
+        env.model.body_quat[:] = fields["body_quat"]
+        env.home_mocap = np.asarray(randomize.to_true(np, ix, params, env.home_mocap),
+                                    np.float32)
+
+    # -- the physical cell -------------------------------------------------------------------
+
+    def reset(self, qpos):
+        self.env.reset(goal=np.zeros((2, 3), np.float32), qpos=qpos)
+        self.targets = self.env.home_mocap.astype(float).copy()
+        self.pending.clear()
+
+    def _step(self):
+        self.env.step_targets(self.targets.astype(np.float32), self.ctrl.astype(np.float32))
+        self.pending.clear()
+        self.steps += 1
+
+    def servo(self, arm: int, pose):
+        self.targets[arm] = self.bases[arm, :3, :3] @ np.asarray(pose[:3], float) \
+            + self.bases[arm, :3, 3]
+        self.pending.add(arm)
+        if len(self.pending) == 2:
+            self._step()
+
+    def move(self, arm: int, pose):
+        self.targets[arm] = self.bases[arm, :3, :3] @ np.asarray(pose[:3], float) \
+            + self.bases[arm, :3, 3]
+        for _ in range(HOME_MAX_STEPS):
+            if np.all(np.linalg.norm(self._grip_world() - self.targets, axis=-1)
+                      <= HOME_TOLERANCE):
+                break
+            self._step()
+
+    def _grip_world(self):
+        arm = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+        return np.asarray(arm["grip_pos"], float)
+
+    def truth(self):
+        """The true (arm readings, object readings) in the world frame (ground truth for
+        `daddpg_jax.deploy.arms.ArmsEnv`'s success)."""
+        env = self.env
+        return (obs_lib.read_arm_sensors(np, env.sensors, env._sens),
+                obs_lib.read_object_sensors(np, env.sensors, env._sens))
+
+    # -- what a controller reports (base frame) ------------------------------------------------
+
+    def tcp_pose(self, arm: int):
+        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+        p = self.inv[arm, :3, :3] @ np.asarray(sens["grip_pos"][arm], float) \
+            + self.inv[arm, :3, 3]
+        R = self.inv[arm, :3, :3] @ self.env.data.site_xmat[self.grip_site[arm]].reshape(3, 3)
+        return list(p) + list(robot.matrix_to_rotvec(R))
+
+    def tcp_speed(self, arm: int):
+        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+        v = self.inv[arm, :3, :3] @ np.asarray(sens["grip_vel"][arm], float)
+        return list(v) + [0.0, 0.0, 0.0]
+
+    def joints(self, arm: int):
+        return [float(x) for x in self.env._qpos[self.joint_adr[arm]]]
+
+    def fingers(self, arm: int):
+        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+        return tuple(float(x) for x in sens["fingers"][arm])
+
+
+class SimRTDEControl:
+    """``rtde_control.RTDEControlInterface``'s subset, on arm ``arm`` of a `SimCell`."""
+
+    def __init__(self, cell: SimCell, arm: int):
+        self.cell, self.arm = cell, arm
+        self.servoing = False
+        self.connected = True
+
+    def servoL(self, pose, speed, acceleration, time, lookahead_time, gain):  # noqa: N802
+        self.servoing = True
+        self.cell.servo(self.arm, pose)
+        return True
+
+    def servoStop(self, a=10.0):  # noqa: N802
+        self.servoing = False
+        return True
+
+    def moveL(self, pose, speed=0.25, acceleration=1.2, asynchronous=False):  # noqa: N802
+        self.cell.move(self.arm, pose)
+        return True
+
+    def stopScript(self):  # noqa: N802
+        self.servoing = False
+
+    def disconnect(self):
+        self.connected = False
+
+
+class SimRTDEReceive:
+    """``rtde_receive.RTDEReceiveInterface``'s subset, on arm ``arm`` of a `SimCell`."""
+
+    def __init__(self, cell: SimCell, arm: int):
+        self.cell, self.arm = cell, arm
+
+    def getActualTCPPose(self):  # noqa: N802
+        return self.cell.tcp_pose(self.arm)
+
+    def getActualTCPSpeed(self):  # noqa: N802
+        return self.cell.tcp_speed(self.arm)
+
+    def getActualQ(self):  # noqa: N802
+        return self.cell.joints(self.arm)
+
+    def isProtectiveStopped(self):  # noqa: N802
+        return bool(self.cell.protective[self.arm])
+
+    def isEmergencyStopped(self):  # noqa: N802
+        return bool(self.cell.emergency[self.arm])
+
+    def disconnect(self):
+        pass
+
+
+class SimGripper(Gripper):
+    """The simulated two-finger gripper of arm ``arm`` (finger servo targets of the cell)."""
+
+    def __init__(self, cell: SimCell, arm: int):
+        self.cell, self.arm = cell, arm
+
+    def move(self, opening: float) -> None:
+        self.cell.ctrl[2 * self.arm:2 * self.arm + 2] = float(opening)
+
+    def openings(self) -> tuple[float, float]:
+        return self.cell.fingers(self.arm)
+
+    def speeds(self) -> tuple[float, float]:
+        sens = obs_lib.read_arm_sensors(np, self.cell.env.sensors, self.cell.env._sens)
+        return tuple(float(x) for x in sens["finger_vel"][self.arm])
+
+
+class SimObjectSource:
+    """The cell's object (world frame), placed at the episode's drawn start by ``reset``."""
+
+    def __init__(self, cell: SimCell):
+        self.cell = cell
+
+    def reset(self, qpos) -> None:
+        self.cell.reset(qpos)
+
+    def read(self) -> dict:
+        env = self.cell.env
+        return obs_lib.read_object_sensors(np, env.sensors, env._sens)
+
+
+def sim_ur_arms(env, period: float, offset=None, yaw=None, dry_run: bool = False):
+    """(`URArms` on a simulated cell, the cell, its object source): ``env`` a fresh
+    `NumpyDualArmEnv` of the task (the cell's physics), the calibration error ``offset`` [2, 3]
+    m and ``yaw`` [2] rad of the true bases."""
+    from daddpg_jax.deploy.arms import URArms
+
+    cell = SimCell(env, offset, yaw)
+    controls = None if dry_run else [SimRTDEControl(cell, i) for i in range(2)]
+    receives = [SimRTDEReceive(cell, i) for i in range(2)]
+    grippers = [SimGripper(cell, i) for i in range(2)]
+    return URArms(controls, receives, grippers, period), cell, SimObjectSource(cell)
+
+
+def sim_ur_env(spec, cell_env, period: float, bases=None, offset=None, yaw=None,
+               dry_run: bool = False):
+    """`daddpg_jax.deploy.arms.ArmsEnv` of `URArms` on a simulated cell (``cell_env``, a
+    `NumpyDualArmEnv` of the task) with its object source and ground truth; ``bases``: the robot
+    side's world <- base transforms (default nominal), ``offset``/``yaw``: the cell's
+    calibration error."""
+    from daddpg_jax.deploy.arms import ArmsEnv
+
+    arms, cell, objects = sim_ur_arms(cell_env, period, offset, yaw, dry_run)
+    return ArmsEnv(spec, arms, bases=bases, objects=objects, truth=cell.truth)

@@ -1,0 +1,432 @@
+"""The arms interface (daddpg_jax/deploy/arms.py), the simulated UR controllers
+(daddpg_jax/deploy/ursim.py) and frame calibration (daddpg_jax/deploy/calibrate.py,
+daddpg-calibrate). In-process, no JAX, no MJX; the policy is a hand-built reach controller
+(tests/reach_controller.py). Cost: ~0.1-2.5 s per test, ~5 s the module."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import socket
+import threading
+
+import numpy as np
+import pytest
+
+from daddpg_jax.cli import calibrate as calibrate_cli
+from daddpg_jax.cli import robot_client
+from daddpg_jax.deploy import NumpyPolicy, calibrate, robot, ur3
+from daddpg_jax.deploy.arms import (
+    CONTROL_CALLS,
+    RECEIVE_CALLS,
+    ArmsStopped,
+    RobotiqGripper,
+    base_transform,
+    connect_ur,
+    link_points_base,
+)
+from daddpg_jax.deploy.limits import SHIPPED, LimitsError, RobotLimits
+from daddpg_jax.deploy.policy import task_settings
+from daddpg_jax.deploy.safety import SafetyFilter
+from daddpg_jax.deploy.server import PolicyServer
+from daddpg_jax.deploy.ursim import SimCell, sim_ur_env
+from mjx_envs import randomize, rules
+from mjx_envs.numpy_env import NumpyDualArmEnv
+from tests.reach_controller import write_reach_controller
+
+SIM_LIMITS = os.path.join(SHIPPED, "sim.toml")
+BOARD = os.path.join(SHIPPED, "board_example.json")
+ERROR = ([[0.02, 0.01, 0.0], [-0.01, -0.02, 0.005]], np.radians([2.0, -2.0]))
+ERROR_FLAG = "0.02,0.01,0,2,-0.01,-0.02,0.005,-2"
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory):
+    return NumpyPolicy.load(write_reach_controller(tmp_path_factory.mktemp("p") / "rc.npz"))
+
+
+class _Client:
+    """The policy in-process (no HTTP): what PolicyClient.act returns."""
+
+    def __init__(self, policy, bad_steps=()):
+        self.policy, self.bad, self.n = policy, set(bad_steps), 0
+
+    def act(self, obs, goal):
+        self.n += 1
+        if self.n in self.bad:
+            return None, {"error": "no answer"}
+        return self.policy.act(obs, goal).tolist(), {}
+
+
+def _env(policy):
+    return NumpyDualArmEnv(task_settings(policy.task, policy.env), task=policy.task)
+
+
+def _run(policy, env, episodes, client=None):
+    limits = RobotLimits.load(SIM_LIMITS).safety_limits()
+    return robot.run_episodes(env, client or _Client(policy), SafetyFilter(limits), episodes,
+                              seed=0, deadline_s=10.0)
+
+
+class _Recorder:
+    """Wraps a ur_rtde-style object and records (method, number of arguments) of each call."""
+
+    def __init__(self, inner, calls):
+        self._inner, self._calls = inner, calls
+
+    def __getattr__(self, name):
+        f = getattr(self._inner, name)
+
+        def call(*args, **kw):
+            assert not kw, f"{name} called with keyword arguments"
+            self._calls.append((name, len(args)))
+            return f(*args)
+
+        return call
+
+
+def _recorded_ur_sim(policy, calls):
+    env = sim_ur_env(_env(policy), _env(policy), 0.04)
+    env.arms.controls = [_Recorder(c, calls) for c in env.arms.controls]
+    env.arms.receives = [_Recorder(r, calls) for r in env.arms.receives]
+    return env
+
+
+# -- the UR implementation on the simulated controllers ----------------------------------------
+
+def test_link_points_from_joint_angles_match_the_simulator(policy):
+    """~1 s: the clearance check's link points from getActualQ (ur3 DH) equal the MJCF's."""
+    env = sim_ur_env(_env(policy), _env(policy), 0.04)
+    res = env.reset(np.random.default_rng(3))
+    truth = env.truth()[0]["link_points"]
+    np.testing.assert_allclose(res.link_points, truth, atol=2e-4)
+    q = np.zeros(6)
+    np.testing.assert_allclose(link_points_base(q)[-1], ur3.forward_kinematics(q)[:3, 3])
+
+
+def test_ur_sim_succeeds_at_the_sim_rate_and_identity_frames_fail(policy):
+    """~3 s: 20 episodes through the simulator and through URArms on the simulated
+    controllers (same goals): the rates agree within the sim's 95% CI; with the frame
+    conversion replaced by the identity the same policy fails."""
+    sim = _run(policy, _env(policy), 20)
+    ur = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04), 20)
+    lo, hi = sim["success_ci95"]
+    assert sim["success_rate"] >= 0.8
+    assert lo <= ur["success_rate"] <= hi
+    assert abs(ur["mean_final_distance"] - sim["mean_final_distance"]) < 0.002
+    ident = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04,
+                                    bases=np.stack([np.eye(4)] * 2)), 3)
+    assert ident["success_rate"] == 0.0 and ident["mean_final_distance"] > 0.2
+
+
+def test_every_ur_rtde_call_exists_with_its_argument_count(policy):
+    """~2 s: the ur_rtde methods URArms calls (recorded over an episode, a hold and the exit)
+    exist in the installed package and accept the number of arguments used (signatures parsed
+    from pybind11's docstrings, overloads included)."""
+    rtde_control = pytest.importorskip("rtde_control")
+    rtde_receive = pytest.importorskip("rtde_receive")
+    calls = []
+    env = _recorded_ur_sim(policy, calls)
+    _run(policy, env, 1, client=_Client(policy, bad_steps={3}))
+    env.close()
+    used = set(calls)
+    assert {n for n, _ in used} == set(CONTROL_CALLS) | set(RECEIVE_CALLS)
+    for name, nargs in used:
+        cls = (rtde_control.RTDEControlInterface if name in CONTROL_CALLS
+               else rtde_receive.RTDEReceiveInterface)
+        if name == "disconnect" and name in CONTROL_CALLS and name in RECEIVE_CALLS:
+            classes = (rtde_control.RTDEControlInterface, rtde_receive.RTDEReceiveInterface)
+        else:
+            classes = (cls,)
+        for c in classes:
+            doc = getattr(c, name).__doc__
+            ranges = _arg_ranges(name, doc)
+            assert ranges, f"{c.__name__}.{name}: no signature in its docstring"
+            assert any(lo <= nargs <= hi for lo, hi in ranges), (c.__name__, name, nargs, ranges)
+    assert _arg_ranges("servoL", rtde_control.RTDEControlInterface.servoL.__doc__) == [(6, 6)]
+    for c in (rtde_control.RTDEControlInterface, rtde_receive.RTDEReceiveInterface):
+        # connect_ur and receive_only construct each with the host alone
+        assert any(lo <= 1 <= hi for lo, hi in _arg_ranges("__init__", c.__init__.__doc__))
+
+
+def _split_top(text):
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += ch in "[(" and 1 or (ch in "])" and -1 or 0)
+        if ch == "," and depth == 0:
+            out.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return out + ([cur] if cur.strip() else [])
+
+
+def _arg_ranges(name, doc):
+    """(required, total) argument counts, self excluded, of each signature in ``doc``."""
+    out = []
+    for m in re.finditer(rf"(?m)^(?:\d+\. )?{name}\((.*)\) ->", doc or ""):
+        params = [p.strip() for p in _split_top(m.group(1))][1:]  # drop self
+        out.append((sum("=" not in p for p in params), len(params)))
+    return out
+
+
+def test_a_hold_streams_the_held_pose_and_servo_stop_comes_only_at_exit(policy):
+    """~1 s: a missed answer makes both arms stream servoL of the held pose; servoStop is sent
+    once, on close."""
+    calls = []
+    env = _recorded_ur_sim(policy, calls)
+    sent = []
+    servo = env.arms.servo
+    env.arms.servo = lambda poses: (sent.append(np.array(poses)), servo(poses))
+    out = _run(policy, env, 1, client=_Client(policy, bad_steps={5, 6}))
+    assert out["stops"] == 2
+    assert len(sent) == env.episode_length
+    np.testing.assert_allclose(sent[4], sent[3])  # step 5 held step 4's pose
+    np.testing.assert_allclose(sent[5], sent[3])
+    assert [c for c in calls if c[0] == "servoStop"] == []
+    env.close()
+    assert [c for c in calls if c[0] == "servoStop"] == [("servoStop", 1)] * 2
+
+
+def test_a_protective_stop_ends_the_run(policy):
+    """~1 s: an arm in a protective stop raises ArmsStopped out of the loop (one line)."""
+    env = sim_ur_env(_env(policy), _env(policy), 0.04)
+    cell = env.arms.receives[1].cell
+
+    class Stopper(_Client):
+        def act(self, obs, goal):
+            if self.n == 4:
+                cell.protective[1] = True
+            return super().act(obs, goal)
+
+    with pytest.raises(ArmsStopped, match="right arm is in a protective stop"):
+        _run(policy, env, 1, client=Stopper(policy))
+
+
+def test_dry_run_moves_nothing_and_records_what_it_would_send(policy):
+    """~1 s: a dry run never steps the simulated cell; every servoL is recorded."""
+    env = sim_ur_env(_env(policy), _env(policy), 0.04, dry_run=True)
+    cell = env.arms.receives[0].cell
+    _run(policy, env, 1)
+    assert cell.steps == 0
+    servos = [c for c in env.arms.sent if "servoL" in c]
+    assert len(servos) == env.episode_length
+    assert np.asarray(servos[-1]["servoL"]).shape == (2, 6)
+
+
+def test_connect_ur_unreachable_is_one_line():
+    """~0.1 s: no controller listening -> ArmsError naming the arm and the host."""
+    pytest.importorskip("rtde_receive")
+    from daddpg_jax.deploy.arms import ArmsError
+
+    with pytest.raises(ArmsError, match=r"cannot connect to the left arm at 127\.0\.0\.1"):
+        connect_ur(["127.0.0.1", "127.0.0.1"], 0.04)
+
+
+def test_robot_client_arms_errors_exit_cleanly(policy, capsys):
+    """~1 s: --arms ur without a controller exits 4 with one line; usage errors exit 2."""
+    pytest.importorskip("rtde_receive")
+    with PolicyServer(policy, port=0) as srv:
+        url = srv.url
+        base = ["--server", url, "--limits", SIM_LIMITS, "--episodes", "1"]
+        assert robot_client.main(base + ["--arms", "ur", "--ur-hosts",
+                                         "127.0.0.1,127.0.0.1"]) == 4
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("error: cannot connect to the left arm")
+        assert robot_client.main(base + ["--arms", "ur"]) == 2
+        assert "--ur-hosts" in capsys.readouterr().err
+        assert robot_client.main(base + ["--dry-run"]) == 2
+        assert robot_client.main(base + ["--arms", "ur", "--fast"]) == 2
+        assert robot_client.main(base + ["--arms", "ur-sim", "--sim-base-error", "1,2"]) == 2
+        assert "Traceback" not in capsys.readouterr().err
+
+
+# -- the gripper ------------------------------------------------------------------------------
+
+def test_robotiq_gripper_speaks_the_urcap_protocol():
+    """~0.2 s: a fake URCap socket: activation, SET POS from an opening, GET POS back."""
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    got, pos = [], [0]
+
+    def serve():
+        conn, _ = srv.accept()
+        buf = b""
+        with conn:
+            while True:
+                data = conn.recv(256)
+                if not data:
+                    return
+                buf += data
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    cmd = line.decode()
+                    got.append(cmd)
+                    if cmd.startswith("SET POS"):
+                        pos[0] = int(cmd.split()[2])
+                    conn.sendall(f"POS {pos[0]}\n".encode() if cmd == "GET POS" else b"ack\n")
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    g = RobotiqGripper("127.0.0.1", port=srv.getsockname()[1], timeout=1.0)
+    g.move(0.085 / 4)  # half of the stroke's gap -> position 128 of 255
+    o1, o2 = g.openings()
+    g.close()
+    t.join(2)
+    srv.close()
+    assert got[:4] == ["SET ACT 1", "SET SPE 255", "SET FOR 50", "SET GTO 1"]
+    assert got[4] == "SET POS 127" or got[4] == "SET POS 128"
+    assert o1 == o2 and abs(o1 - 0.085 / 4) < 0.0003
+
+
+# -- calibration ------------------------------------------------------------------------------
+
+def _board(arm):
+    with open(BOARD) as f:
+        return np.asarray(json.load(f)[arm])
+
+
+def test_calibration_error_percentiles_over_100_seeded_trials():
+    """~0.5 s: bases drawn as mjx_envs/randomize.py models them (base_offset 0.05 m, base_yaw
+    5 deg bounds), 8 board points per arm, Gaussian noise of 0.5 mm RMS per point: over 100
+    seeded trials (both arms) the 95th percentiles of the base position and rotation errors
+    are within 1 mm and 0.1 deg."""
+    pos, ang = [], []
+    r = randomize.Randomization(base_offset=0.05, base_yaw=5.0)
+    sigma = 0.5e-3 / np.sqrt(3.0)
+    for trial in range(100):
+        rng = np.random.default_rng(trial)
+        p = randomize.unpack(np.asarray(randomize.draw(np, rules.NumpySampler(), rng, r)
+                                        ["params"], float))
+        for i, (arm, a) in enumerate(zip(("left", "right"), robot.ARMS)):
+            T = base_transform(ur3.BASE_POS[a] + p["offset"][i], ur3.BASE_YAW[a] + p["yaw"][i])
+            w = _board(arm)
+            inv = np.linalg.inv(T)
+            b = w @ inv[:3, :3].T + inv[:3, 3] + rng.normal(0.0, sigma, w.shape)
+            est, res = calibrate.fit_base(w, b)
+            assert res.shape == (8,) and np.all(res < 3e-3)
+            e = calibrate.pose_error(est, T)
+            pos.append(e[0])
+            ang.append(e[1])
+    assert np.percentile(pos, 95) < 1e-3
+    assert np.percentile(ang, 95) < 0.1
+
+
+def test_full_rotation_fit_recovers_a_tilted_base_exactly():
+    """~0.1 s: Kabsch (model full) on noiseless non-coplanar points."""
+    T = base_transform([0.01, 0.2, 0.41], 3.0)
+    T[:3, :3] = T[:3, :3] @ robot.rotvec_to_matrix([0.02, -0.01, 0.0])
+    w = np.concatenate([_board("left"), _board("left")[:4] + [0, 0, 0.1]])
+    inv = np.linalg.inv(T)
+    est, res = calibrate.fit_base(w, w @ inv[:3, :3].T + inv[:3, 3], model="full")
+    assert calibrate.pose_error(est, T)[0] < 1e-9 and np.max(res) < 1e-9
+
+
+@pytest.mark.parametrize("w, b, msg", [
+    (np.zeros((3, 3)), np.zeros((3, 3)), "at least 4"),
+    (np.c_[np.arange(5.0), np.zeros(5), np.zeros(5)] * 0.1,
+     np.c_[np.arange(5.0), np.zeros(5), np.zeros(5)] * 0.1, "one line"),
+    (np.full((4, 3), np.nan), np.zeros((4, 3)), "NaN"),
+    (np.zeros((4, 2)), np.zeros((4, 3)), "rows of"),
+])
+def test_calibration_refuses_bad_points(w, b, msg):
+    """~0.1 s each."""
+    with pytest.raises(calibrate.CalibrationError, match=msg):
+        calibrate.fit_base(w, b)
+
+
+def test_write_calibration_replaces_its_block_and_limits_validate_it(tmp_path):
+    """~0.1 s: written twice, one block; the limits read it back; a bad one is refused."""
+    path = tmp_path / "cell.toml"
+    shutil.copy(SIM_LIMITS, path)
+    T = base_transform([0.01, 0.26, 0.4], np.pi + 0.02)
+    for _ in range(2):
+        lim = calibrate.write_calibration(path, {a: calibrate.entry(T, [1e-4] * 8)
+                                                 for a in ("left", "right")})
+    assert path.read_text().count(calibrate.MARKER) == 1
+    np.testing.assert_allclose(lim.base_transforms()[0], T, atol=1e-6)
+    np.testing.assert_allclose(RobotLimits().base_transforms()[1], ur3.base_transform("r"))
+    with pytest.raises(LimitsError, match="calibration.left.base_pos"):
+        RobotLimits(calibration={"left": {"base_pos": [float("nan"), 0, 0],
+                                          "base_rotvec": [0, 0, 0]},
+                                 "right": {"base_pos": [0, 0, 0], "base_rotvec": [0, 0, 0]}})
+
+
+def test_calibrate_cli_bad_input_is_one_line(tmp_path, capsys):
+    """~0.1 s: a missing points file and too few points: exit 2, one line, no traceback."""
+    lim = tmp_path / "cell.toml"
+    shutil.copy(SIM_LIMITS, lim)
+    assert calibrate_cli.main(["--limits", str(lim), "--points", str(tmp_path / "no.json"),
+                               "--arms", "ur-sim"]) == 2
+    few = tmp_path / "few.json"
+    few.write_text(json.dumps({"left": [[0.2, 0, 0.41]] * 3, "right": [[0.2, 0, 0.41]] * 3}))
+    assert calibrate_cli.main(["--limits", str(lim), "--points", str(few), "--arms",
+                               "ur-sim"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("error: ") for e in err)
+    assert "calibration" not in lim.read_text()
+
+
+def test_a_calibration_error_corrected_by_the_tool_keeps_the_success(policy, tmp_path):
+    """~4 s: the simulated bases carry an error (2 cm, 2 deg): uncalibrated, the policy fails
+    through ur-sim; daddpg-calibrate (rehearsed on the same controllers, 0.5 mm noise) writes
+    the bases into the limits file, and with them the success is that of the exact frames."""
+    lim = tmp_path / "cell.toml"
+    shutil.copy(SIM_LIMITS, lim)
+    off, yaw = ERROR
+    before = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04, offset=off, yaw=yaw), 10)
+    assert calibrate_cli.main(["--limits", str(lim), "--points", BOARD, "--arms", "ur-sim",
+                               "--sim-base-error", ERROR_FLAG]) == 0
+    bases = RobotLimits.load(lim).base_transforms()
+    after = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04, bases=bases, offset=off,
+                                    yaw=yaw), 10)
+    exact = _run(policy, _env(policy), 10)
+    assert before["success_rate"] <= 0.1
+    assert after["success_rate"] >= exact["success_rate"] - 0.1
+    cell = SimCell(_env(policy), off, yaw)
+    for i in range(2):
+        assert calibrate.pose_error(bases[i], cell.bases[i])[0] < 1e-3
+
+
+def test_ur_sim_observes_what_the_simulator_observes_in_an_object_task():
+    """~1 s: pick-up, 30 random actions through the simulator and through URArms on the
+    simulated controllers (the object from the cell's object source): the observations agree
+    to float32 rounding (frames, velocities, fingers, object terms)."""
+    sim = NumpyDualArmEnv(task="pickup")
+    ur = sim_ur_env(NumpyDualArmEnv(task="pickup"), NumpyDualArmEnv(task="pickup"), 0.04)
+    a, b = sim.reset(np.random.default_rng(1)), ur.reset(np.random.default_rng(1))
+    np.testing.assert_allclose(a.observation, b.observation, atol=1e-5)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        act = rng.uniform(-1, 1, 8).astype(np.float32)
+        a = sim.step_targets(*sim.command_targets(act))
+        b = ur.step_targets(*ur.command_targets(act))
+        np.testing.assert_allclose(a.observation, b.observation, atol=1e-5)
+    np.testing.assert_allclose(a.achieved_goal, b.achieved_goal, atol=1e-6)
+
+
+def test_targets_without_a_joint_solution_within_the_limits_are_refused(policy):
+    """~0.5 s: a target out of the arm's reach keeps that arm's previous target (counted);
+    a reachable one is sent; joint_solution reproduces a known pose."""
+    from daddpg_jax.deploy.arms import joint_solution, within_joint_limits
+
+    env = sim_ur_env(_env(policy), _env(policy), 0.04)
+    env.reset(np.random.default_rng(0))
+    before = env.target
+    far = before.copy()
+    far[0] = [1.5, 0.25, 0.5]
+    far[1] += [0.01, 0.0, 0.0]
+    env.step_targets(far, np.zeros(4, np.float32))
+    assert env.refused == 1
+    np.testing.assert_allclose(env.target[0], before[0])
+    np.testing.assert_allclose(env.target[1], far[1])
+    q = np.array([0.3, -1.5, 1.9, -1.8, -1.57, 0.4])
+    T = ur3.forward_kinematics(q)
+    pose = np.concatenate([T[:3, 3], robot.matrix_to_rotvec(T[:3, :3])])
+    sol = joint_solution(q + 0.02, pose)
+    assert sol is not None and within_joint_limits(sol)
+    np.testing.assert_allclose(ur3.forward_kinematics(sol)[:3, 3], T[:3, 3], atol=1e-4)
+    assert not within_joint_limits(q + [0, 0, 0, 0, 0, 2 * np.pi])
