@@ -252,6 +252,7 @@ def test_test_overrides_switch_the_options_off():
 def test_robot_client_runs_the_standard_task(monkeypatch):
     from daddpg_jax.cli import robot_client
     from daddpg_jax.deploy import server
+    from daddpg_jax.deploy.limits import RobotLimits
 
     env = {**schema.to_dict(settings.default_config("pickup")), "goal_rest_fraction": 0.5,
            "grasp_start_fraction": 1.0, "dt": 0.04}
@@ -261,10 +262,14 @@ def test_robot_client_runs_the_standard_task(monkeypatch):
             pass
 
         def info(self):
-            return {"task": "pickup", "env": env}
+            return {"task": "pickup", "env": env, "action_size": 8}
+
+        def close(self):
+            pass
 
     monkeypatch.setattr(server, "PolicyClient", FakeClient)
-    _, task_cfg, env_settings = robot_client._served("http://x", None)
+    limits = RobotLimits(control_period=0.04)
+    _, task_cfg, env_settings = robot_client._served("http://x", limits, None, None, None)
     assert task_cfg == settings.default_config("pickup")
     assert env_settings["grasp_start_fraction"] == 0.0 and env_settings["dt"] == 0.04
 
