@@ -23,6 +23,24 @@ PHYSICS_VERSION = 2
 finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
 0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
 only block (pot body; bar middle and caps): the two engines agree (docs/TASKS.md, "MJX vs C")."""
+
+
+PHYSICS_CHANGES = {2: ("push", "pickup", "pot")}
+"""the tasks whose physics each version changed (version 2: finger contacts; reach has none)"""
+
+
+def physics_version_note(recorded, task: str) -> str | None:
+    """None when a run or a policy file of `task` was trained with physics that this install
+    simulates alike; else one line saying so (a record without the field is version 1)."""
+    version = 1 if recorded is None else recorded
+    if not any(task in PHYSICS_CHANGES.get(v, ()) for v in range(version + 1,
+                                                                  PHYSICS_VERSION + 1)):
+        return None
+    return (f"trained with physics version {version}; this install simulates version "
+            f"{PHYSICS_VERSION} (docs/TASKS.md, 'MJX vs C'): its success here can differ from "
+            f"the figures logged in training")
+
+
 PHYSICS = ("auto", "mjx", "c")
 """physics backends: auto = MJX on an accelerator, MuJoCo's C engine on a CPU"""
 ENGINES = PHYSICS[1:]

@@ -271,6 +271,11 @@ def test_export_run_restores_checkpoint(run_with_checkpoint, exported, tmp_path)
     assert latest.meta["source"]["checkpoint_step"] == 2
     assert first.meta["source"]["checkpoint_step"] == 1
     direct = NumpyPolicy.load(exported["daddpg"][2])
+    # the physics version: the run's record (export_run), this install's (a live state)
+    from mjx_envs.settings import PHYSICS_VERSION
+
+    assert latest.meta["physics_version"] == direct.meta["physics_version"] == PHYSICS_VERSION
+    assert latest.info()["physics_version"] == PHYSICS_VERSION
     for a, b in zip(latest.weights + latest.biases, direct.weights + direct.biases,
                     strict=True):
         np.testing.assert_array_equal(a, b)
@@ -351,3 +356,31 @@ def test_robot_side_imports_without_jax(exported, tmp_path, mode):
     files = sorted(f[:-3] for f in os.listdir(os.path.join(ROOT, "daddpg_jax", "deploy"))
                    if f.endswith(".py") and f != "__init__.py")
     assert f"OK {mode} {','.join('daddpg_jax.deploy.' + f for f in files)} (8,)" in r.stdout
+
+
+def test_the_physics_version_is_recorded_and_an_older_one_noted(tmp_path, capsys):
+    """config.json, the exported policy and GET /info carry the physics version; a contact
+    task's run of an older version gets one warning line when it is read, reach none (~0 s)."""
+    from mjx_envs.settings import PHYSICS_VERSION, physics_version_note
+
+    run = tmp_path / "run"
+    ckpt.save_config(str(run), tiny_config("daddpg"), env_overrides={})
+    assert ckpt.load_config(str(run))[1]["physics_version"] == PHYSICS_VERSION
+    assert capsys.readouterr().err == ""
+    assert physics_version_note(PHYSICS_VERSION, "pickup") is None
+    assert physics_version_note(None, "reach") is None      # version 2 changed no reach physics
+    note = physics_version_note(None, "pickup")
+    assert note.startswith(f"trained with physics version 1; this install simulates version "
+                           f"{PHYSICS_VERSION}")
+    old = tmp_path / "old"
+    ckpt.save_config(str(old), tiny_config("daddpg").replace(task="pickup"), env_overrides={})
+    path = old / "config.json"
+    payload = json.loads(path.read_text())
+    del payload["physics_version"]
+    path.write_text(json.dumps(payload))
+    for _ in range(2):
+        ckpt.load_config(str(old))
+    err = capsys.readouterr().err
+    assert err.count("warning:") == 1 and note in err
+    legacy = NumpyPolicy.load(os.path.join(ROOT, "tests", "data", "legacy_reach", "policy.npz"))
+    assert legacy.info()["physics_version"] == 1

@@ -100,6 +100,8 @@ def check_meta(meta) -> None:
         _int(meta, "num_arms", high=MAX_AGENTS)
     if "num_agents" in meta:
         _int(meta, "num_agents", high=MAX_AGENTS)
+    if "physics_version" in meta:   # absent in files written before it was recorded: 1
+        _int(meta, "physics_version", high=1000)
     layers = meta.get("layer_sizes")
     if (not isinstance(layers, list) or not 0 < len(layers) <= MAX_LAYERS or any(
             not isinstance(ls, list) or len(ls) != 2
@@ -381,7 +383,8 @@ class NumpyPolicy:
                     action=m["action"], env=self.env,
                     checkpoint_step=(m.get("source") or {}).get("checkpoint_step")
                     if isinstance(m.get("source") or {}, dict) else None,
-                    policy_sha256=self.sha256)
+                    policy_sha256=self.sha256,
+                    physics_version=m.get("physics_version", 1))
 
     # -- inference ----------------------------------------------------------------------------
 

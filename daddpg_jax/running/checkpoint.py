@@ -37,6 +37,7 @@ import orbax.checkpoint as ocp
 from flax import serialization
 
 from daddpg_jax.running.host import host_info
+from mjx_envs.settings import PHYSICS_VERSION, physics_version_note
 
 RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
              "checkpoints_best", "tensorboard", "videos", "wandb")
@@ -502,7 +503,7 @@ def save_config(run_dir, cfg, **extra) -> str:
         versions={p: _version(p) for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint",
                                            "numpy", "mujoco", "mujoco-mjx", "daddpg-jax")},
         device=str(jax.devices()[0].device_kind), backend=jax.default_backend(),
-        git_revision=_git_revision(repo), host=host_info(),
+        git_revision=_git_revision(repo), host=host_info(), physics_version=PHYSICS_VERSION,
         created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **extra,
     )
@@ -571,4 +572,11 @@ def load_config(run_dir):
         cfg = TrainConfig.from_dict(payload["config"])
     except (TypeError, ValueError) as e:   # ConfigError is a ValueError
         raise ConfigFileError(f"{path}: invalid training config ({e})") from None
+    note = physics_version_note(payload.get("physics_version"), cfg.task)
+    if note and path not in _PHYSICS_NOTED:   # once per run and process
+        _PHYSICS_NOTED.add(path)
+        print(f"warning: {run_dir}: {note}", file=sys.stderr, flush=True)
     return cfg, payload
+
+
+_PHYSICS_NOTED: set = set()

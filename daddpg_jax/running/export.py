@@ -44,6 +44,7 @@ import numpy as np
 from daddpg_jax.algo import variants
 from daddpg_jax.deploy.policy import FORMAT_VERSION
 from mjx_envs import schema
+from mjx_envs.settings import PHYSICS_VERSION
 
 
 class ExportError(RuntimeError):
@@ -128,6 +129,8 @@ def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]
         arms=["left", "right"],
         env=settings,
         source=dict(source or {}),
+        # the physics it was trained on: the run's record, or this install's for a live state
+        physics_version=int((source or {}).get("physics_version", PHYSICS_VERSION)),
     )
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
     return arrays
@@ -210,5 +213,6 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
         raise ExportError(str(e)) from None
     source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used), best=bool(best),
                   git_revision=payload.get("git_revision"),
-                  env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict())
+                  env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict(),
+                  physics_version=payload.get("physics_version", 1))
     return export_state(state, cfg, env, out, source)
