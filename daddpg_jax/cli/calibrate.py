@@ -35,7 +35,7 @@ from daddpg_jax.deploy.limits import ARM_KEYS, LimitsError, RobotLimits
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="calibrate.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="daddpg-calibrate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--limits", required=True, metavar="FILE",
                    help="the robot limits file (TOML or JSON) that receives the calibration")
