@@ -6,6 +6,7 @@ networks' inputs)."""
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault("MUJOCO_GL", "egl")   # headless rendering, as the CLIs that render set it
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -276,3 +276,19 @@ def test_mjx_backend_import_prints_no_warp_noise():
                          timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
     assert out.returncode == 0, out.stderr[-2000:]
     assert "warp" not in (out.stdout + out.stderr).lower(), out.stdout + out.stderr
+
+
+def test_render_a_frame_of_a_state(c_env):
+    """mjx_envs.render in this process (~1 s): the camera's settings, and a small frame of the
+    reset state that shows the scene (skipped where no headless OpenGL can be created)."""
+    from mjx_envs import render
+
+    cam = render.make_camera(distance=2.0)
+    assert cam.distance == 2.0 and cam.azimuth == render.DEFAULT_CAMERA["azimuth"]
+    np.testing.assert_allclose(cam.lookat, render.DEFAULT_CAMERA["lookat"])
+    state = c_env.reset(jax.random.PRNGKey(0))
+    try:
+        img = render.render_state(c_env, state, width=64, height=48)
+    except Exception as e:  # noqa: BLE001 (no EGL/OSMesa context on this machine)
+        pytest.skip(f"no headless OpenGL here: {e}")
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.std() > 5

@@ -228,3 +228,30 @@ def test_flood_defences(server, policy):
     for bad_pause in (-1.0, 11.0, float("nan")):
         with pytest.raises(ValueError):
             ServiceLimits(error_pause=bad_pause)
+
+
+def test_benchmark_tools_in_process(server, policy, capsys):
+    """The two service benchmarks' own code in this process (< 1 s): bench_server's timed
+    clients against the module's service, and bench_flood's malformed bodies and argument
+    checks. Their full runs (own processes) are in the e2e tier and docs/RELIABILITY.md."""
+    from daddpg_jax.cli import bench_flood, bench_server
+
+    r = bench_server.bench(server.url, requests=30, clients=3, warmup=2, obs_size=policy.obs_size)
+    assert r["requests"] == 30 and r["clients"] == 3 and r["errors"] == 0
+    assert 0 < r["rtt_ms_p50"] <= r["rtt_ms_p99"] <= r["rtt_ms_max"]
+    assert r["requests_per_s"] > 0 and r["server_compute_ms_p50"] >= 0
+    for argv in (["--requests", "0", GOOD], ["--clients", "33", GOOD], []):
+        with pytest.raises(SystemExit) as e:
+            bench_server.main(argv)
+        assert e.value.code == 2
+    assert bench_flood.malformed_body(5, "nesting") == b"[[[[["
+    assert bench_flood.malformed_body(6, "numbers") == b"[1,1,1"
+    assert bench_flood.malformed_body(7, "strings") == b'["\\[\\[\\'
+    for kind in bench_flood.BODY_KINDS:
+        body = bench_flood.malformed_body(1000, kind)
+        assert len(body) == 1000
+        with pytest.raises((ValueError, RecursionError)):   # deep nesting: RecursionError
+            json.loads(body)
+    with pytest.raises(SystemExit):
+        bench_flood.main([GOOD, "--flooders", "1000"])
+    capsys.readouterr()
