@@ -32,8 +32,8 @@ test-all:
 coverage:
 	$(PYTHON) -m coverage erase
 	$(PYTHON) -m coverage run -m pytest -q -p no:xdist
-	$(PYTHON) -m coverage json -q -o .coverage.json
-	$(PYTHON) tests/module_coverage.py .coverage.json
+	$(PYTHON) -m coverage json -q -o coverage_modules.json
+	$(PYTHON) tests/module_coverage.py coverage_modules.json
 
 train:
 	$(PYTHON) experiments/run.py --task reach
