@@ -38,7 +38,13 @@ from typing import Any
 import numpy as np
 
 from daddpg_jax.algo import variants
-from daddpg_jax.deploy.policy import NumpyPolicy, PolicyFormatError, _check_input, file_sha256
+from daddpg_jax.deploy.policy import (
+    NumpyPolicy,
+    PolicyFormatError,
+    _check_input,
+    file_sha256,
+    write_policy_file,
+)
 
 OPSET = 17
 INPUTS = ("observation", "desired_goal")
@@ -129,18 +135,7 @@ def write_onnx(arrays: dict[str, Any], out) -> str:
     if not out.endswith(".onnx"):
         raise ValueError(f"output file must end in .onnx, got {out!r}")
     data = build_model(arrays).SerializeToString()
-    d = os.path.dirname(os.path.abspath(out))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{os.path.basename(out)}-", suffix=".onnx", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out)
-    finally:
-        if os.path.lexists(tmp):
-            os.remove(tmp)
-    return out
+    return write_policy_file(out, lambda f: f.write(data))
 
 
 def _arrays_of(model) -> dict[str, Any]:

@@ -181,6 +181,27 @@ def _float_array(zf, infos, name: str, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def write_policy_file(out: str, write) -> str:
+    """Writes a policy file atomically: ``write(f)`` fills a new temporary file of an
+    unpredictable name beside ``out`` (O_EXCL: nothing planted there is written through), which
+    is then renamed to ``out``. Returns ``out``."""
+    import tempfile
+
+    d = os.path.dirname(os.path.abspath(out))
+    os.makedirs(d, exist_ok=True)
+    suffix = os.path.splitext(out)[1]
+    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{os.path.basename(out)}-", suffix=suffix, dir=d)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, out)
+    finally:
+        if os.path.lexists(tmp):
+            os.remove(tmp)
+    return out
+
+
 def file_sha256(path) -> str:
     """SHA-256 of a file's bytes, in hex (what ``sha256sum`` prints)."""
     h = hashlib.sha256()

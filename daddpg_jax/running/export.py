@@ -36,13 +36,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from typing import Any
 
 import numpy as np
 
 from daddpg_jax.algo import variants
-from daddpg_jax.deploy.policy import FORMAT_VERSION
+from daddpg_jax.deploy.policy import FORMAT_VERSION, write_policy_file
 from mjx_envs import schema
 from mjx_envs.settings import PHYSICS_VERSION
 
@@ -141,18 +140,7 @@ def write_npz(arrays: dict[str, Any], out) -> str:
     out = os.fspath(out)
     if not out.endswith(".npz"):
         raise ExportError(f"output file must end in .npz, got {out!r}")
-    d = os.path.dirname(os.path.abspath(out))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{os.path.basename(out)}-", suffix=".npz", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as f:   # O_EXCL, unpredictable name: nothing planted is used
-            np.savez(f, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out)
-    finally:
-        if os.path.lexists(tmp):
-            os.remove(tmp)
-    return out
+    return write_policy_file(out, lambda f: np.savez(f, **arrays))
 
 
 FORMATS = ("npz", "onnx")
