@@ -74,7 +74,7 @@ class DualArmEnv:
         if cfg.n_substeps < 1:
             raise ValueError("n_substeps must be >= 1")
         self.physics = default_physics() if physics == "auto" else physics
-        self.mj_model = load_model(cfg.scene, cfg.timestep, cfg.cone)
+        self.mj_model = load_model(cfg.scene, cfg.timestep, cfg.cone, cfg.physics_version)
         self.episode_length = int(cfg.episode_length)
         self.dt = float(cfg.timestep * cfg.n_substeps)
         self.sensors = obs_lib.SensorLayout.from_model(self.mj_model)

@@ -16,6 +16,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from mjx_envs import settings
+
 NUM_ARMS = 2
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC,
          "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
@@ -49,18 +51,50 @@ def scene_path(scene: str) -> Iterator[Path]:
         yield Path(folder) / scene
 
 
-def load_model(scene: str, timestep: float | None = None,
-               cone: str | None = None) -> mujoco.MjModel:
-    """The scene's model with the task's ``timestep`` and friction ``cone`` (when given)."""
+def load_model(scene: str, timestep: float | None = None, cone: str | None = None,
+               physics_version: int | None = None) -> mujoco.MjModel:
+    """The scene's model with the task's ``timestep`` and friction ``cone`` (when given), in
+    physics version ``physics_version`` (default: the current one, the scene as shipped; older
+    ones apply `mjx_envs.settings`'s record of what they had instead, e.g. `PHYSICS_V1`)."""
     if cone is not None and cone not in CONES:
         raise ValueError(f"cone must be one of {sorted(CONES)}, got {cone!r}")
+    version = settings.PHYSICS_VERSION if physics_version is None else int(physics_version)
+    if not 1 <= version <= settings.PHYSICS_VERSION:
+        raise ValueError(f"physics_version must be in [1, {settings.PHYSICS_VERSION}], got "
+                         f"{physics_version!r}")
     with scene_path(scene) as path:
-        m = mujoco.MjModel.from_xml_path(str(path))
+        if version == settings.PHYSICS_VERSION:
+            m = mujoco.MjModel.from_xml_path(str(path))
+        else:
+            spec = mujoco.MjSpec.from_file(str(path))
+            _physics_v1(spec, scene)
+            m = spec.compile()
     if timestep is not None:
         m.opt.timestep = float(timestep)
     if cone is not None:
         m.opt.cone = CONES[cone]
     return m
+
+
+def _is_finger(name: str) -> bool:
+    return name.endswith(("_finger1", "_finger2"))
+
+
+def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a shipped scene's spec (physics version 2) into version 1 (`PHYSICS_V1`)."""
+    v1 = settings.PHYSICS_V1
+    for geom in spec.geoms:
+        if _is_finger(geom.name):
+            geom.size = v1["finger_size"]
+    friction = v1["pair_friction"].get(scene, {})
+    for pair in spec.pairs:
+        names = (pair.geomname1, pair.geomname2)
+        if not any(_is_finger(n) for n in names):
+            continue
+        pair.margin = v1["finger_pair_margin"]
+        for n in names:
+            if n in friction:
+                pair.friction = friction[n]
 
 
 def home_state(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

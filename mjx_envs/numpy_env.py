@@ -98,7 +98,7 @@ class NumpyDualArmEnv:
         self.settings = dataclasses.asdict(cfg)
         self.task = task
         self.exact = bool(exact)
-        self.model = load_model(cfg.scene, cfg.timestep, cfg.cone)
+        self.model = load_model(cfg.scene, cfg.timestep, cfg.cone, cfg.physics_version)
         self.data = mujoco.MjData(self.model)
         self.rules = rules.TaskRules(cfg, self.model, settings_lib.OBJECTS.get(task))
         self.n_substeps = int(cfg.n_substeps)

@@ -22,23 +22,49 @@ PHYSICS_VERSION = 2
 1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger boxes, finger-pot body and
 finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
 0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
-only block (pot body; bar middle and caps): the two engines agree (docs/TASKS.md, "MJX vs C")."""
+only block (pot body; bar middle and caps): the two engines agree (docs/TASKS.md, "MJX vs C").
+The scenes in assets/ are the current version; `PHYSICS_V1` holds what version 1 had instead,
+and `mjx_envs.model.load_model` builds either, so that a run or a policy file acts with the
+physics it was trained on (its record: config.json's and the export's ``physics_version``,
+absent = 1)."""
 
 
 PHYSICS_CHANGES = {2: ("push", "pickup", "pot")}
 """the tasks whose physics each version changed (version 2: finger contacts; reach has none)"""
 
+PHYSICS_V1 = dict(
+    finger_size=(0.012, 0.006, 0.035),
+    finger_pair_margin=0.005,
+    pair_friction={
+        "scene_pickup.xml": {"bar_mid": (1.5, 1.5, 0.01, 0.0001, 0.0001),
+                             "bar_cap_l": (1.5, 1.5, 0.01, 0.0001, 0.0001),
+                             "bar_cap_r": (1.5, 1.5, 0.01, 0.0001, 0.0001)},
+        "scene_pot.xml": {"pot_body": (0.5, 0.5, 0.005, 0.0001, 0.0001)},
+    },
+)
+"""Physics version 1, as differences from the shipped scenes: the half-sizes of every finger
+box (geoms ``<arm>_finger1/2``), the margin of every contact pair with a finger, and per scene
+the friction of the finger pairs with the named object geoms."""
 
-def physics_version_note(recorded, task: str) -> str | None:
-    """None when a run or a policy file of `task` was trained with physics that this install
-    simulates alike; else one line saying so (a record without the field is version 1)."""
-    version = 1 if recorded is None else recorded
-    if not any(task in PHYSICS_CHANGES.get(v, ()) for v in range(version + 1,
-                                                                  PHYSICS_VERSION + 1)):
+
+def recorded_physics_version(recorded) -> int:
+    """The physics version of a record (config.json's or a policy export's
+    ``physics_version``): absent (None) means 1, the version before it was recorded."""
+    return 1 if recorded is None else int(recorded)
+
+
+def physics_version_note(recorded, task: str, simulated: int | None = None) -> str | None:
+    """None when a run or a policy file of `task`, trained with physics version `recorded`, is
+    simulated (version `simulated`, default `PHYSICS_VERSION`) with physics that act alike;
+    else one line saying which version it was trained with and which one simulates it."""
+    version = recorded_physics_version(recorded)
+    now = PHYSICS_VERSION if simulated is None else int(simulated)
+    lo, hi = sorted((version, now))
+    if not any(task in PHYSICS_CHANGES.get(v, ()) for v in range(lo + 1, hi + 1)):
         return None
-    return (f"trained with physics version {version}; this install simulates version "
-            f"{PHYSICS_VERSION} (docs/TASKS.md, 'MJX vs C'): its success here can differ from "
-            f"the figures logged in training")
+    return (f"trained with physics version {version}, simulated here with version {now} "
+            f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "
+            f"training")
 
 
 PHYSICS = ("auto", "mjx", "c")
@@ -59,6 +85,11 @@ class TaskConfig:
     cone: str = spec("elliptic", "friction cone: 'elliptic' holds grasps better; 'pyramidal' "
                      "where a scene has no contacts (MJX 3.17's elliptic solver fails on a "
                      "model without contacts)", choices=("elliptic", "pyramidal"))
+    physics_version: int = spec(PHYSICS_VERSION, "physics version of the simulated scene "
+                                "(mjx_envs.settings.PHYSICS_VERSION: the current one; 1: the "
+                                "contacts before the engines were made to agree, kept so that "
+                                "older runs and policy files act with the physics they were "
+                                "trained on)", low=1, high=PHYSICS_VERSION)
     max_delta: float = spec(0.05, "largest move of a gripper target per control step along "
                             "each axis, metres", low=0.0, low_open=True)
     lock_fingers: bool = spec(True, "ignore the finger command and hold the fingers at "

@@ -229,7 +229,8 @@ def test_older_export_loads_with_task_defaults(exported, tmp_path):
     # a policy file the flat-layout version of the package wrote (tests/data/legacy_reach)
     legacy = NumpyPolicy.load(os.path.join(ROOT, "tests", "data", "legacy_reach", "policy.npz"))
     assert set(legacy.meta["env"]) == set(FORMAT_1_ENV_KEYS)
-    assert legacy.env == {**defaults, **legacy.meta["env"]}
+    # ... with the physics it was trained on (no record: version 1)
+    assert legacy.env == {**defaults, "physics_version": 1, **legacy.meta["env"]}
     # no env settings at all: the task's defaults, dt from timestep * n_substeps
     bare = NumpyPolicy.load(_rewrite(path, tmp_path / "bare.npz", env={}))
     assert bare.env == {**defaults, "dt": pytest.approx(0.04)}
@@ -358,19 +359,23 @@ def test_robot_side_imports_without_jax(exported, tmp_path, mode):
     assert f"OK {mode} {','.join('daddpg_jax.deploy.' + f for f in files)} (8,)" in r.stdout
 
 
-def test_the_physics_version_is_recorded_and_an_older_one_noted(tmp_path, capsys):
-    """config.json, the exported policy and GET /info carry the physics version; a contact
-    task's run of an older version gets one warning line when it is read, reach none (~0 s)."""
+def test_the_physics_version_is_recorded_and_an_older_run_acts_with_its_own(tmp_path, capsys):
+    """config.json, the exported policy and GET /info carry the physics version; a run or a
+    policy file of an older version is simulated with that version (an env override), silently;
+    simulating it with another version that acts unlike it prints one warning line, reach none
+    (~0 s)."""
     from mjx_envs.settings import PHYSICS_VERSION, physics_version_note
 
     run = tmp_path / "run"
     ckpt.save_config(str(run), tiny_config("daddpg"), env_overrides={})
-    assert ckpt.load_config(str(run))[1]["physics_version"] == PHYSICS_VERSION
-    assert capsys.readouterr().err == ""
+    _, payload = ckpt.load_config(str(run))
+    assert payload["physics_version"] == PHYSICS_VERSION
+    assert "physics_version" not in payload["env_overrides"]
     assert physics_version_note(PHYSICS_VERSION, "pickup") is None
     assert physics_version_note(None, "reach") is None      # version 2 changed no reach physics
+    assert physics_version_note(None, "pickup", simulated=1) is None
     note = physics_version_note(None, "pickup")
-    assert note.startswith(f"trained with physics version 1; this install simulates version "
+    assert note.startswith(f"trained with physics version 1, simulated here with version "
                            f"{PHYSICS_VERSION}")
     old = tmp_path / "old"
     ckpt.save_config(str(old), tiny_config("daddpg").replace(task="pickup"), env_overrides={})
@@ -379,8 +384,18 @@ def test_the_physics_version_is_recorded_and_an_older_one_noted(tmp_path, capsys
     del payload["physics_version"]
     path.write_text(json.dumps(payload))
     for _ in range(2):
-        ckpt.load_config(str(old))
+        _, payload = ckpt.load_config(str(old))
+        assert payload["env_overrides"] == {"physics_version": 1}
+        ckpt.physics_note(str(old), payload, "pickup")     # its own version: nothing to say
+    assert capsys.readouterr().err == ""
+    for _ in range(2):
+        ckpt.physics_note(str(old), payload, "pickup", simulated=PHYSICS_VERSION)
     err = capsys.readouterr().err
     assert err.count("warning:") == 1 and note in err
+    # resumed, it keeps its version: the override and the record say 1
+    ckpt.save_config(str(old), tiny_config("daddpg").replace(task="pickup"),
+                     env_overrides=payload["env_overrides"])
+    assert json.loads(path.read_text())["physics_version"] == 1
     legacy = NumpyPolicy.load(os.path.join(ROOT, "tests", "data", "legacy_reach", "policy.npz"))
     assert legacy.info()["physics_version"] == 1
+    assert legacy.env["physics_version"] == 1       # its simulator builds version 1's scene

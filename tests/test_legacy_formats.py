@@ -42,7 +42,12 @@ def test_old_run_exports_and_resumes(old_run, tmp_path, reference):
     assert cfg.hidden == (16,) and cfg.task == "reach"
     out = str(tmp_path / "policy.npz")
     assert export_cli.main([old_run, "--out", out]) == 0
-    got = NumpyPolicy.load(out).act(reference["observation"], reference["desired_goal"])
+    exported = NumpyPolicy.load(out)
+    got = exported.act(reference["observation"], reference["desired_goal"])
     np.testing.assert_allclose(got, reference["action"], atol=1e-6)
+    # it acts with the physics it was trained on (no record: version 1), and keeps it
+    assert exported.meta["physics_version"] == exported.env["physics_version"] == 1
     assert train_cli.main(["--resume", old_run, "--epochs", "2", "--no-progress"]) == 0
     assert ckpt.all_steps(old_run)[-1] == 2
+    _, payload = ckpt.load_config(old_run)
+    assert payload.get("physics_version", 1) == payload["env_overrides"]["physics_version"] == 1

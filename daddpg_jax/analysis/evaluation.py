@@ -109,9 +109,11 @@ test_env_overrides.__test__ = False  # not a pytest test when imported into a te
 
 
 def load_policy(run_dir: str, step: int | None = None, physics: str | None = None,
-                best: bool = False) -> Policy:
+                best: bool = False, physics_version: int | None = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest), or with
-    ``best`` the run's best checkpoint (the epoch of its best test success)."""
+    ``best`` the run's best checkpoint (the epoch of its best test success). The env simulates
+    the physics version the run was trained on, or ``physics_version`` (one warning line when
+    that acts unlike the run's)."""
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
     from daddpg_jax.running.runner import make_env, restore_readable
@@ -128,7 +130,11 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
     # nor the demonstrations (n_demos > 0 would play them again to build the template)
     cfg = cfg.replace(buffer_size=1, n_demos=0)
-    env = make_env(cfg, test_env_overrides(cfg.task, payload.get("env_overrides")))
+    overrides = test_env_overrides(cfg.task, payload.get("env_overrides"))
+    if physics_version is not None:
+        ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version)
+        overrides["physics_version"] = int(physics_version)
+    env = make_env(cfg, overrides)
     fns = make_train_fns(env, cfg)
     try:   # the newest readable checkpoint (a warning for each unreadable newer one)
         state, step = restore_readable(run_dir, fns.init(), step, best=best)
@@ -335,6 +341,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
         "checkpoint": policy.step, "best": policy.best,
         "env_steps": int(row["env_steps"]) if row else None,
         "task": cfg.task, "algo": cfg.algo, "physics": physics,
+        "physics_version": int(policy.env.config.physics_version),
         "episodes": n, "seed": seed,
         "success_rate": k / n, "successes": k, "success_ci95": list(wilson_interval(k, n)),
         "arm_contact_rate": c / n, "arm_contact_episodes": c,

@@ -60,6 +60,11 @@ def build_parser():
     p.add_argument("--physics", default=None, metavar="ENGINE[,ENGINE]",
                    help=f"physics engine ({', '.join(PHYSICS)}; default: the run's), or two "
                         "engines to compare over the same episodes, e.g. c,mjx")
+    p.add_argument("--physics-version", type=int, default=None, metavar="N",
+                   help="simulate physics version N (1 to the current one, "
+                        "mjx_envs.settings.PHYSICS_VERSION) instead of the one the run was "
+                        "trained on (default, recorded in its config.json); e.g. an older run "
+                        "on today's physics")
     p.add_argument("--divergence", metavar="OUT_DIR", default=None,
                    help="with two engines: write OUT_DIR/divergence.csv and .png (object and "
                         "grip-point distances between the engines per control step)")
@@ -140,6 +145,10 @@ def _check_args(args) -> tuple | str:
         return str(e)
     if len(names) > 1 and (args.perturb or args.video):
         return "--perturb and --video take one engine, not a comparison"
+    from mjx_envs.settings import PHYSICS_VERSION
+
+    if args.physics_version is not None and not 1 <= args.physics_version <= PHYSICS_VERSION:
+        return f"--physics-version must be in [1, {PHYSICS_VERSION}], got {args.physics_version}"
     if args.divergence and len(names) < 2:
         return "--divergence needs two engines, e.g. --physics c,mjx"
     return names
@@ -207,7 +216,9 @@ def main(argv=None) -> int:
         return 2
     try:
         policies = {name: evaluation.load_policy(args.run_dir, args.step, physics=name,
-                                                 best=args.best) for name in names}
+                                                 best=args.best,
+                                                 physics_version=args.physics_version)
+                    for name in names}
     except evaluation.NoCheckpointError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

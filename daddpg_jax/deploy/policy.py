@@ -280,7 +280,10 @@ class NumpyPolicy:
             self.goal_std = np.asarray(goal_std, np.float32)
         self.num_agents = int(self.weights[0].shape[0])
         try:
-            self._env = env_settings(self.task, meta.get("env"))
+            # the physics it was trained on: the env's own record, else the file's (absent: 1)
+            saved = {"physics_version": task_settings_lib.recorded_physics_version(
+                meta.get("physics_version")), **(meta.get("env") or {})}
+            self._env = env_settings(self.task, saved)
         except ValueError as e:
             raise PolicyFormatError(f"env settings of the policy file: {e}") from None
         check_env(self._env)

@@ -37,7 +37,7 @@ import orbax.checkpoint as ocp
 from flax import serialization
 
 from daddpg_jax.running.host import host_info
-from mjx_envs.settings import PHYSICS_VERSION, physics_version_note
+from mjx_envs.settings import PHYSICS_VERSION, physics_version_note, recorded_physics_version
 
 RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
              "checkpoints_best", "tensorboard", "videos", "wandb")
@@ -503,7 +503,10 @@ def save_config(run_dir, cfg, **extra) -> str:
         versions={p: _version(p) for p in ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint",
                                            "numpy", "mujoco", "mujoco-mjx", "daddpg-jax")},
         device=str(jax.devices()[0].device_kind), backend=jax.default_backend(),
-        git_revision=_git_revision(repo), host=host_info(), physics_version=PHYSICS_VERSION,
+        git_revision=_git_revision(repo), host=host_info(),
+        # the physics the run simulates: its env override (an older run resumed) or this install's
+        physics_version=int((extra.get("env_overrides") or {}).get("physics_version",
+                                                                    PHYSICS_VERSION)),
         created=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **extra,
     )
@@ -572,11 +575,26 @@ def load_config(run_dir):
         cfg = TrainConfig.from_dict(payload["config"])
     except (TypeError, ValueError) as e:   # ConfigError is a ValueError
         raise ConfigFileError(f"{path}: invalid training config ({e})") from None
-    note = physics_version_note(payload.get("physics_version"), cfg.task)
-    if note and path not in _PHYSICS_NOTED:   # once per run and process
-        _PHYSICS_NOTED.add(path)
-        print(f"warning: {run_dir}: {note}", file=sys.stderr, flush=True)
+    # a run acts with the physics it was trained on: an older version becomes an env override
+    # (the env builds that version's scene, `mjx_envs.model.load_model`)
+    recorded = recorded_physics_version(payload.get("physics_version"))
+    overrides = payload.setdefault("env_overrides", {})
+    if recorded != PHYSICS_VERSION and "physics_version" not in overrides:
+        overrides["physics_version"] = recorded
     return cfg, payload
+
+
+def physics_note(run_dir, payload, task: str, simulated: int | None = None) -> None:
+    """Prints one warning line (once per run and process) when a run of `task` is simulated
+    with a physics version (`simulated`, default its own) that acts unlike the one it was
+    trained on (`mjx_envs.settings.physics_version_note`)."""
+    recorded = payload.get("physics_version")
+    own = (payload.get("env_overrides") or {}).get("physics_version", recorded)
+    note = physics_version_note(recorded, task, own if simulated is None else simulated)
+    key = (os.fspath(run_dir), simulated)
+    if note and key not in _PHYSICS_NOTED:
+        _PHYSICS_NOTED.add(key)
+        print(f"warning: {run_dir}: {note}", file=sys.stderr, flush=True)
 
 
 _PHYSICS_NOTED: set = set()

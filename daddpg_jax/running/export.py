@@ -128,8 +128,9 @@ def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]
         arms=["left", "right"],
         env=settings,
         source=dict(source or {}),
-        # the physics it was trained on: the run's record, or this install's for a live state
-        physics_version=int((source or {}).get("physics_version", PHYSICS_VERSION)),
+        # the physics it was trained on and acts with (the env's: a run's record when exported
+        # from a run directory)
+        physics_version=int(settings.get("physics_version", PHYSICS_VERSION)),
     )
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
     return arrays
@@ -202,5 +203,5 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
     source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used), best=bool(best),
                   git_revision=payload.get("git_revision"),
                   env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict(),
-                  physics_version=payload.get("physics_version", 1))
+                  physics_version=int(env.config.physics_version))
     return export_state(state, cfg, env, out, source)
