@@ -70,6 +70,10 @@ def physics_version_note(recorded, task: str, simulated: int | None = None) -> s
 PHYSICS = ("auto", "mjx", "c")
 """physics backends: auto = MJX on an accelerator, MuJoCo's C engine on a CPU"""
 ENGINES = PHYSICS[1:]
+MJX_CPU_CHUNK = 32
+"""episodes per batch for MJX on a CPU (`daddpg-evaluate`, and the trainer's test episodes):
+its contact scenes have hung at batches of 100 and 256 and run at 64 and below (intermittently,
+so no limit is proven safe; `daddpg-evaluate` backs it with a watchdog)"""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -151,9 +151,11 @@ def test_chunked_evaluation_equals_unchunked(policy):
             np.testing.assert_array_equal(tp[k], tw[k], err_msg=k)
     assert tw["object"].shape == (N_TEST, policy.env.episode_length + 1, 3)
     assert tw["grip"].shape == (N_TEST, policy.env.episode_length + 1, 2, 3)
-    assert evaluation.default_chunk("c", "cpu") is None
-    assert evaluation.default_chunk("mjx", "cpu") == evaluation.MJX_CPU_CHUNK
-    assert evaluation.default_chunk("mjx", "gpu") is None
+    from mjx_envs.physics.backends import default_chunk
+
+    assert default_chunk("c", "cpu") is None
+    assert default_chunk("mjx", "cpu") == evaluation.MJX_CPU_CHUNK
+    assert default_chunk("mjx", "gpu") is None
     with pytest.raises(ValueError, match="chunk must be"):
         evaluation.evaluate(policy, episodes=2, chunk=0)
 

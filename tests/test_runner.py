@@ -160,3 +160,24 @@ def test_cli_trains_reach_tiny(tmp_path):
     assert 0.0 <= float(rows[0]["test_success_rate"]) <= 1.0
     assert ckpt.all_steps(run) == [1]
     assert os.path.exists(os.path.join(run, "learning_curve.png"))
+
+
+def test_chunked_test_episodes_give_the_same_metrics(env):
+    """The trainer's test episodes in batches (MJX on a CPU: mjx_envs.settings.MJX_CPU_CHUNK)
+    give the metrics of one batch: 8 episodes as 3 + 3 + 2 (padded) (~5 s, toy env)."""
+    import jax
+    import numpy as np
+
+    from daddpg_jax.algo.train import make_train_fns
+
+    whole = make_train_fns(env, TINY)
+    chunked = make_train_fns(env, TINY, eval_chunk=3)
+    state = whole.init()
+    state, _ = whole.train_epoch(state)   # a policy that is not the initial one
+    a, b = jax.device_get(whole.evaluate(state)), jax.device_get(chunked.evaluate(state))
+    assert set(a) == set(b)
+    for k in a:
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-6, atol=1e-7, err_msg=k)
+    key = jax.random.PRNGKey(11)
+    c, d = jax.device_get(whole.evaluate(state, key)), jax.device_get(chunked.evaluate(state, key))
+    assert all(np.allclose(c[k], d[k], rtol=1e-6, atol=1e-7) for k in c)

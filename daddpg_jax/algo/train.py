@@ -97,7 +97,8 @@ class _Setup(NamedTuple):
 def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
                    update_progress: Callable | None = None, update_tick: int = 0,
                    demo_policy: Callable | None = None,
-                   clock: Callable | None = None, eval_env=None) -> TrainFns:
+                   clock: Callable | None = None, eval_env=None,
+                   eval_chunk: int | None = None) -> TrainFns:
     """Builds the jitted functions for `env` (an ENV_CONTRACT env) and `cfg`.
 
     progress: optional host function `progress(metrics)` called once per cycle (unordered)
@@ -113,6 +114,8 @@ def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
     epoch's time (`StageClock`); one device only (ignored with several).
     eval_env: the env of `evaluate` (default: `env`); e.g. the task without its training-only
     options (mjx_envs.settings.test_overrides), so that test episodes stay the standard task.
+    eval_chunk: play the test episodes `evaluate` runs in batches of this many (one device;
+    e.g. `mjx_envs.settings.MJX_CPU_CHUNK` for MJX on a CPU); the metrics do not depend on it.
     """
     sp = _setup(env, cfg, demo_policy)
     act, rollout, rollout_keys = _acting_fns(sp)
@@ -150,7 +153,8 @@ def make_train_fns(env, cfg: TrainConfig, progress: Callable | None = None,
         return int(state.cycles) * cfg.num_envs * sp.horizon
 
     return TrainFns(init=_init_wrapper(init, cfg, state_shardings), train_epoch=epoch_jit,
-                    evaluate=_evaluate_fn(sp, eval_rollout, eval_rollout_keys), act=jax.jit(act),
+                    evaluate=_evaluate_fn(sp, eval_rollout, eval_rollout_keys, eval_chunk),
+                    act=jax.jit(act),
                     rollout=jax.jit(rollout, static_argnums=(2, 3)), env_steps=env_steps,
                     learner=sp.learner, config=cfg, capacity=sp.capacity, horizon=sp.horizon,
                     num_devices=sp.n_dev, mesh=sp.mesh, state_shardings=state_shardings)
@@ -451,8 +455,10 @@ def _sharded_cycle(sp: _Setup, cycle_body, init):
     return cycle, state_shardings
 
 
-def _evaluate_fn(sp: _Setup, rollout, rollout_keys):
+def _evaluate_fn(sp: _Setup, rollout, rollout_keys, chunk: int | None = None):
     cfg = sp.cfg
+    if chunk is not None and sp.mesh is None and cfg.n_test_episodes > chunk:
+        return _chunked_evaluate(sp, rollout_keys, chunk)
 
     def evaluate_impl(state: TrainState, key):
         episodes, tr = rollout(state, key, cfg.n_test_episodes, explore=False)
@@ -466,6 +472,31 @@ def _evaluate_fn(sp: _Setup, rollout, rollout_keys):
         if key is None:
             key = jax.random.PRNGKey(cfg.eval_seed)
         return evaluate_jit(state, key)
+
+    return evaluate
+
+
+def _chunked_evaluate(sp: _Setup, rollout_keys, chunk: int):
+    """evaluate in batches of `chunk` test episodes (MJX on a CPU hangs at large batches): the
+    same n_test_episodes reset keys as in one batch (the last batch padded with copies of the
+    last key), the episodes gathered on the host before the means, so the metrics do not
+    depend on `chunk`. One compiled batch shape; Python loops over the batches."""
+    n = sp.cfg.n_test_episodes
+    play = jax.jit(lambda state, keys, k_scan: rollout_keys(state, keys, k_scan, False))
+    metrics = jax.jit(_rollout_metrics)
+
+    def evaluate(state: TrainState, key=None):
+        """Deterministic actors on n_test_episodes episodes from fixed seeds (cfg.eval_seed),
+        `chunk` at a time."""
+        if key is None:
+            key = jax.random.PRNGKey(sp.cfg.eval_seed)
+        k_reset, k_scan = jax.random.split(key)
+        keys = jax.random.split(k_reset, n)
+        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], -n % chunk, axis=0)])
+        parts = [play(state, keys[i:i + chunk], k_scan) for i in range(0, n, chunk)]
+        episodes = jax.tree.map(lambda *x: jnp.concatenate(x, 0)[:n], *[p[0] for p in parts])
+        tr = jax.tree.map(lambda *x: jnp.concatenate(x, 1)[:, :n], *[p[1] for p in parts])
+        return metrics(episodes, tr)
 
     return evaluate
 

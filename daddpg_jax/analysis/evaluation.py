@@ -48,14 +48,13 @@ from typing import Any
 
 import numpy as np
 
+from mjx_envs.settings import MJX_CPU_CHUNK  # noqa: F401 (part of this module's interface)
+
 # MuJoCo picks its OpenGL backend when it is first imported: headless EGL unless told otherwise
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 Z95 = 1.959963984540054  # standard normal quantile 0.975
 
-MJX_CPU_CHUNK = 32
-"""episodes per chunk for MJX on a CPU: its contact scenes have hung at batches of 100 and 256
-and run at 64 and below (intermittently, so no limit is proven safe: the watchdog backs it)"""
 WATCHDOG_SECONDS = 120.0
 """default watchdog of a chunked MJX evaluation on a CPU: seconds one chunk may take (after
 compilation) before it is started again once"""
@@ -145,15 +144,6 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
 
 class EngineHang(RuntimeError):
     """A chunk of episodes made no progress within the watchdog's time, twice."""
-
-
-def default_chunk(physics: str, backend: str | None = None) -> int | None:
-    """Episodes per chunk when none is given: ``MJX_CPU_CHUNK`` for MJX on a CPU, else None
-    (all episodes in one batch)."""
-    import jax
-
-    backend = backend or jax.default_backend()
-    return MJX_CPU_CHUNK if physics == "mjx" and backend == "cpu" else None
 
 
 def run_watched(fn, timeout: float | None, what: str = "chunk", retries: int = 1):
@@ -301,7 +291,8 @@ def _metrics_row(run_dir: str, epoch: int) -> dict | None:
 def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
              chunk: int | str | None = "auto", watchdog: float | str | None = "auto"):
     """Runs ``episodes`` deterministic episodes, in chunks of ``chunk`` episodes ("auto":
-    `default_chunk`; None: all at once) under a watchdog of ``watchdog`` seconds per chunk
+    `mjx_envs.physics.backends.default_chunk`; None: all at once) under a watchdog of
+    ``watchdog`` seconds per chunk
     ("auto": ``WATCHDOG_SECONDS`` for MJX on a CPU, else none; None: none). Returns
     (summary dict, trajectory) where the trajectory holds NumPy arrays for rendering and
     comparison: ``qpos`` [N, T+1, nq], ``mocap`` [N, T+1, 2, 3], ``object`` [N, T+1, 3] (object
@@ -310,17 +301,18 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
     import jax
 
     from daddpg_jax.algo import acting
+    from mjx_envs.physics import backends
 
     if episodes < 1:
         raise ValueError("episodes must be >= 1")
     seed = int(policy.cfg.eval_seed if seed is None else seed)
     physics = getattr(policy.env, "physics", policy.cfg.physics)
     if chunk == "auto":
-        chunk = default_chunk(physics)
+        chunk = backends.default_chunk(physics)
     if chunk is not None and (int(chunk) != chunk or chunk < 1):
         raise ValueError(f"chunk must be an integer >= 1, 'auto' or None, got {chunk!r}")
     if watchdog == "auto":
-        watchdog = WATCHDOG_SECONDS if default_chunk(physics) is not None else None
+        watchdog = WATCHDOG_SECONDS if backends.default_chunk(physics) is not None else None
     if watchdog is not None and not watchdog > 0:
         raise ValueError(f"watchdog must be > 0 seconds, 'auto' or None, got {watchdog!r}")
     check_episodes_fit(policy, int(episodes))

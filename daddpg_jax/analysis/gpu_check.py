@@ -516,7 +516,7 @@ def stage_env(args, rec: Recorder) -> None:
             rec.row(key, dict(base, skipped="stage time cap"))
             continue
         try:
-            check_physics_backend(args.env_physics, n, 0)
+            check_physics_backend(args.env_physics, n)
             if task not in envs:
                 envs[task] = mjx_envs.make(task, physics=args.env_physics,
                                            **_env_overrides(args))
@@ -597,7 +597,7 @@ def stage_train(args, rec: Recorder) -> None:
 
     cfg = train_config(args, args.train_task, args.train_envs, n_cycles=args.train_cycles,
                        seed=args.seed)
-    check_physics_backend(cfg.physics, cfg.num_envs, cfg.n_test_episodes)
+    check_physics_backend(cfg.physics, cfg.num_envs)
     env = mjx_envs.make(cfg.task, physics=cfg.physics, **_env_overrides(args))
     T = env.episode_length
     row = dict(task=cfg.task, physics=env.physics, num_envs=cfg.num_envs,

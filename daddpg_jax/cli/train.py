@@ -297,7 +297,7 @@ def resolve(args, parser, check_out: bool = True):
                               f"(available: {', '.join(sorted(scripted.POLICIES))})")
     from daddpg_jax.running.runner import check_physics_backend
 
-    check_physics_backend(cfg.physics, cfg.num_envs, cfg.n_test_episodes)
+    check_physics_backend(cfg.physics, cfg.num_envs)
     if run_dir is None:
         run_dir = args.out or os.path.join(
             "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")

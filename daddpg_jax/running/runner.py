@@ -44,6 +44,7 @@ from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.analysis.levels import reaches
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import distributed as dist
+from mjx_envs.physics.backends import default_chunk
 from mjx_envs.schema import ConfigError
 
 METRIC_COLUMNS = (
@@ -172,21 +173,21 @@ def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
     return make_env(cfg, {**env_overrides, **test})
 
 
-def check_physics_backend(physics: str | None, num_envs: int, n_test_episodes: int,
+def check_physics_backend(physics: str | None, num_envs: int,
                           backend: str | None = None) -> None:
-    """Raises ConfigError for MJX physics on a CPU at MJX_CPU_MAX_BATCH envs or test episodes
-    or more: such a run hangs inside XLA's batched Cholesky factorization (docs/RELIABILITY.md),
-    so it is refused before anything compiles."""
+    """Raises ConfigError for MJX physics on a CPU at MJX_CPU_MAX_BATCH envs or more: such a
+    run hangs inside XLA's batched Cholesky factorization (docs/RELIABILITY.md), so it is
+    refused before anything compiles. Test episodes are played in batches of
+    `mjx_envs.settings.MJX_CPU_CHUNK` there, whatever n_test_episodes is."""
     backend = backend or jax.default_backend()
     if physics != "mjx" or backend != "cpu":
         return
-    for name, n in (("num_envs", num_envs), ("n_test_episodes", n_test_episodes)):
-        if n >= MJX_CPU_MAX_BATCH:
-            raise ConfigError(
-                f"physics 'mjx' on a CPU with {name}={n}: MJX at {MJX_CPU_MAX_BATCH} or more "
-                "envs per batch hangs on a CPU (a deadlock inside XLA's batched Cholesky "
-                "factorization; docs/RELIABILITY.md); use --physics c (the MuJoCo C engine, "
-                f"the CPU default) or fewer than {MJX_CPU_MAX_BATCH} envs and test episodes")
+    if num_envs >= MJX_CPU_MAX_BATCH:
+        raise ConfigError(
+            f"physics 'mjx' on a CPU with num_envs={num_envs}: MJX at {MJX_CPU_MAX_BATCH} or "
+            "more envs per batch hangs on a CPU (a deadlock inside XLA's batched Cholesky "
+            "factorization; docs/RELIABILITY.md); use --physics c (the MuJoCo C engine, the "
+            f"CPU default) or fewer than {MJX_CPU_MAX_BATCH} envs")
 
 
 @dataclass
@@ -265,7 +266,7 @@ def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
                                 run_dir=os.fspath(run_dir), resume=resume, force=force,
                                 time_budget_s=time_budget_s, stop_at_success=stop_at_success))
     check_physics_backend(cfg.physics if env is None else getattr(env, "physics", None),
-                          cfg.num_envs, cfg.n_test_episodes)
+                          cfg.num_envs)
     dist.on_primary(_prepare_run_dir, run_dir, resume, force,
                     errors=(RunDirError, ValueError, OSError))
     try:
@@ -294,7 +295,8 @@ def _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, comman
     clock = StageClock()
     fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
                          update_tick=update_tick, demo_policy=demo_policy, clock=clock,
-                         eval_env=eval_env)
+                         eval_env=eval_env,
+                         eval_chunk=default_chunk(getattr(env, "physics", cfg.physics)))
     if fns.num_devices > 1:
         clock = None
     check_memory(fns, cfg)

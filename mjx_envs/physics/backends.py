@@ -50,12 +50,19 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from mjx_envs import randomize
+from mjx_envs import randomize, settings
 
 
 def default_physics() -> str:
     """``mjx`` when JAX sees an accelerator, else ``c``."""
     return "mjx" if jax.default_backend() in ("gpu", "cuda", "rocm", "tpu") else "c"
+
+
+def default_chunk(physics: str, backend: str | None = None) -> int | None:
+    """Episodes per batch when none is given: `mjx_envs.settings.MJX_CPU_CHUNK` for MJX on a
+    CPU, else None (all episodes in one batch)."""
+    backend = backend or jax.default_backend()
+    return settings.MJX_CPU_CHUNK if physics == "mjx" and backend == "cpu" else None
 
 
 # --------------------------------------------------------------------------------- MJX -----
