@@ -286,3 +286,30 @@ def test_scripted_controllers_agree_over_300_episodes(task):
           f"difference {c.mean() - m.mean():+.3f} ({lo:+.3f} to {hi:+.3f}), {counts}")
     assert -AGREEMENT_BOUND <= lo and hi <= AGREEMENT_BOUND
     assert c.mean() >= 0.9 and m.mean() >= 0.9
+
+
+@pytest.mark.mjx
+def test_mjx_freezes_an_env_whose_state_turns_non_finite():
+    """MJX has no engine warnings: an env whose state becomes non-finite is frozen at its last
+    finite state for the rest of the episode with physics_ok 0 (as the C engine freezes an env),
+    so no NaN reaches observations or rewards; the other envs of the batch step on. The state of
+    env 0 is pushed to overflow (qvel 1e38) (~30 s: one MJX compile of reach at batch 2)."""
+    import jax
+    import jax.numpy as jnp
+
+    import mjx_envs
+
+    env = mjx_envs.make("reach", physics="mjx")
+    reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+    s = reset(jax.random.split(jax.random.PRNGKey(0), 2))
+    s = s.replace(data=s.data.replace(qvel=s.data.qvel.at[0].set(1e38)))
+    action = jnp.full((2, 8), 0.5, jnp.float32)
+    q0 = np.asarray(s.data.qpos)
+    for _ in range(3):
+        s = step(s, action)
+        ok = np.asarray(s.metrics["physics_ok"])
+        assert ok.tolist() == [0.0, 1.0]
+        np.testing.assert_array_equal(np.asarray(s.data.qpos)[0], q0[0])   # frozen
+        for leaf in jax.tree.leaves((s.obs, s.reward)):
+            assert np.all(np.isfinite(np.asarray(leaf)))
+    assert not np.allclose(np.asarray(s.data.qpos)[1], q0[1])             # env 1 moved

@@ -30,6 +30,9 @@ Facts the C backend handles (mujoco 4.0.0):
 - ``rollout`` silently freezes an env after an engine warning (its time stops advancing): the
   backend compares the returned time with the expected one and raises ``CData.ok`` to 0.0, which
   the env reports as ``metrics["physics_ok"]``.
+
+``mjx`` does the same where its state becomes non-finite (MJX has no engine warnings): the env
+stays at its last finite state for the rest of the episode, and ``physics_ok`` is 0.0.
 """
 
 from __future__ import annotations
@@ -126,7 +129,14 @@ class MjxBackend:
         def body(_, d):
             return self._mjx.step(model, d)
 
-        return jax.lax.fori_loop(0, self.n_substeps, body, d)
+        new = jax.lax.fori_loop(0, self.n_substeps, body, d)
+        # An env whose state became non-finite is frozen at its last finite state for the rest
+        # of the episode, as the C engine freezes an env after an engine warning, so that no
+        # NaN reaches observations, rewards or a replay buffer. Its time becomes NaN: the
+        # sticky mark that `ok` reads (the C backend's time stops instead).
+        bad = ~_finite_state(new) | ~jnp.isfinite(data.time)
+        frozen = d.replace(time=jnp.full_like(d.time, jnp.nan))
+        return jax.tree.map(lambda f, n: jnp.where(bad, f, n), frozen, new)
 
     @staticmethod
     def sensordata(data):
@@ -142,8 +152,12 @@ class MjxBackend:
 
     @staticmethod
     def ok(data):
-        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
-        return finite.astype(jnp.float32)
+        """1.0 while the env has not been frozen (`step`), else 0.0."""
+        return (_finite_state(data) & jnp.isfinite(data.time)).astype(jnp.float32)
+
+
+def _finite_state(data):
+    return jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
 
 
 # ------------------------------------------------------------------------------- C engine --
