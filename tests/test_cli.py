@@ -148,7 +148,6 @@ def test_config_file_reruns_a_recorded_configuration(tmp_path):
     (["--config", "/nonexistent/run/config.json"], "no config.json there"),
     (["--resume", "/nonexistent/run", "--force"], "--resume and --force exclude each other"),
     (["--physics", "mjx", "--num-envs", "256"], "num_envs=256: MJX at 256 or more envs"),
-    (["--physics", "mjx", "--set", "n_test_episodes=300"], "use --physics c"),
 ])
 def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
