@@ -120,11 +120,12 @@ class SimCell:
     def grip(self, arm: int, opening: float):
         self.ctrl[2 * arm:2 * arm + 2] = float(opening)
 
-    def _arm_sensors(self):
+    def arm_sensors(self):
+        """The arm sensors now (world frame, `mjx_envs.observation.read_arm_sensors`)."""
         return obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
 
     def _grip_world(self):
-        return np.asarray(self._arm_sensors()["grip_pos"], float)
+        return np.asarray(self.arm_sensors()["grip_pos"], float)
 
     def truth(self):
         """The true (arm readings, object readings) in the world frame (ground truth for
@@ -134,17 +135,17 @@ class SimCell:
                 obs_lib.read_object_sensors(np, env.sensors, env._sens))
 
     # -- what a controller reports (base frame) ------------------------------------------------
-    # ``sens``: the arm sensors of `_arm_sensors`, when the caller already read them
+    # ``sens``: the arm sensors of `arm_sensors`, when the caller already read them
 
     def tcp_pose(self, arm: int, sens=None):
-        sens = self._arm_sensors() if sens is None else sens
+        sens = self.arm_sensors() if sens is None else sens
         p = self.inv[arm, :3, :3] @ np.asarray(sens["grip_pos"][arm], float) \
             + self.inv[arm, :3, 3]
         R = self.inv[arm, :3, :3] @ self.env.data.site_xmat[self.grip_site[arm]].reshape(3, 3)
         return list(p) + list(robot.matrix_to_rotvec(R))
 
     def tcp_speed(self, arm: int, sens=None):
-        sens = self._arm_sensors() if sens is None else sens
+        sens = self.arm_sensors() if sens is None else sens
         v = self.inv[arm, :3, :3] @ np.asarray(sens["grip_vel"][arm], float)
         return list(v) + [0.0, 0.0, 0.0]
 
@@ -152,17 +153,17 @@ class SimCell:
         return [float(x) for x in self.env._qpos[self.joint_adr[arm]]]
 
     def fingers(self, arm: int, sens=None):
-        sens = self._arm_sensors() if sens is None else sens
+        sens = self.arm_sensors() if sens is None else sens
         return tuple(float(x) for x in sens["fingers"][arm])
 
     def finger_speeds(self, arm: int, sens=None):
-        sens = self._arm_sensors() if sens is None else sens
+        sens = self.arm_sensors() if sens is None else sens
         return tuple(float(x) for x in sens["finger_vel"][arm])
 
     def link_points(self, arm: int, sens=None):
         """The simulator's link points of arm ``arm`` [5, 3] (shoulder, elbow, wrist 1,
         flange, tool centre) in its true base frame."""
-        sens = self._arm_sensors() if sens is None else sens
+        sens = self.arm_sensors() if sens is None else sens
         pts = np.asarray(sens["link_points"][arm], float)
         return pts @ self.inv[arm, :3, :3].T + self.inv[arm, :3, 3]
 
@@ -184,7 +185,7 @@ class SimArms:
         cell = self.cell
         raise_if_stopped(cell.emergency, cell.protective)
         t = self.clock()
-        sens, arms = cell._arm_sensors(), range(2)
+        sens, arms = cell.arm_sensors(), range(2)
         return ArmsReading(
             tool_pose=np.array([cell.tcp_pose(i, sens) for i in arms], float),
             tool_speed=np.array([cell.tcp_speed(i, sens) for i in arms], float),
