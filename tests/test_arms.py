@@ -1,10 +1,12 @@
-"""The arms interface (daddpg_jax/deploy/arms.py), the simulated UR controllers
-(daddpg_jax/deploy/ursim.py) and frame calibration (daddpg_jax/deploy/calibrate.py,
-daddpg-calibrate). In-process, no JAX, no MJX; the policy is a hand-built reach controller
-(tests/reach_controller.py). Cost: ~0.1-2.5 s per test, ~5 s the module."""
+"""The arms interface (daddpg_jax/deploy/arms.py), its simulator implementation (--arms sim)
+and the simulated UR controllers (daddpg_jax/deploy/ursim.py), and frame calibration
+(daddpg_jax/deploy/calibrate.py, daddpg-calibrate). In-process, no JAX, no MJX; the policy is a
+hand-built reach controller (tests/reach_controller.py). Cost: ~0.1-3.5 s per test, ~9 s the
+module."""
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import re
@@ -21,17 +23,22 @@ from daddpg_jax.deploy import NumpyPolicy, calibrate, robot, ur3
 from daddpg_jax.deploy.arms import (
     CONTROL_CALLS,
     RECEIVE_CALLS,
+    Arms,
+    ArmsEnv,
     ArmsStopped,
     RobotiqGripper,
+    URArms,
     base_transform,
     connect_ur,
+    joint_solution,
     link_points_base,
+    make_env,
 )
 from daddpg_jax.deploy.limits import SHIPPED, LimitsError, RobotLimits
 from daddpg_jax.deploy.policy import task_settings
 from daddpg_jax.deploy.safety import SafetyFilter
 from daddpg_jax.deploy.server import PolicyServer
-from daddpg_jax.deploy.ursim import SimCell, sim_ur_env
+from daddpg_jax.deploy.ursim import SimArms, SimCell, sim_env, sim_ur_env
 from mjx_envs import randomize, rules
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from tests.reach_controller import write_reach_controller
@@ -241,6 +248,120 @@ def test_robot_client_arms_errors_exit_cleanly(policy, capsys):
         assert robot_client.main(base + ["--arms", "ur", "--fast"]) == 2
         assert robot_client.main(base + ["--arms", "ur-sim", "--sim-base-error", "1,2"]) == 2
         assert "Traceback" not in capsys.readouterr().err
+
+
+# -- the simulator behind the arms interface (--arms sim) ----------------------------------------
+
+def test_sim_arms_and_ur_arms_implement_every_method_of_the_arms_interface():
+    """~0.1 s: URArms and SimArms have every method of the Protocol Arms, with its parameters;
+    --arms sim is an ArmsEnv on SimArms converting with the simulator's own bases (a limits
+    file's calibration is for real or rehearsed UR arms), and still refuses --dry-run."""
+    methods = [n for n, f in vars(Arms).items() if inspect.isfunction(f) and n[0] != "_"]
+    assert set(methods) == {"read", "servo", "grip", "home", "stop", "close"}
+    for cls in (URArms, SimArms):
+        for name in methods:
+            want = list(inspect.signature(getattr(Arms, name)).parameters)
+            assert list(inspect.signature(getattr(cls, name)).parameters) == want, (cls, name)
+    env = make_env("sim", None, "reach", 0.04, bases=np.stack([np.eye(4)] * 2))
+    assert isinstance(env, ArmsEnv) and isinstance(env.arms, SimArms)
+    np.testing.assert_allclose(env.bases, env.arms.cell.bases)  # its own exact bases
+    from daddpg_jax.deploy.arms import ArmsUsageError
+
+    with pytest.raises(ArmsUsageError, match="--dry-run needs --arms ur or ur-sim"):
+        make_env("sim", None, "reach", 0.04, dry_run=True)
+
+
+def _same_step(a, b):
+    np.testing.assert_allclose(b.observation, a.observation, atol=1e-5)
+    np.testing.assert_allclose(b.target, a.target, atol=1e-5)
+    np.testing.assert_allclose(b.link_points, a.link_points, atol=1e-5)
+    np.testing.assert_allclose(b.goal_distance, a.goal_distance, atol=1e-5)
+    np.testing.assert_allclose(b.arm_clearance, a.arm_clearance, atol=1e-5)
+    assert b.success == a.success
+
+
+@pytest.mark.parametrize("task,episodes", [("reach", (0, 1, 2)), ("pickup", (0,))])
+def test_arms_sim_observes_moves_and_succeeds_as_the_simulator(task, episodes):
+    """~0.5 s per task: the same goals and random actions through --arms sim (ArmsEnv on
+    SimArms) and through the simulator stepped directly give the same observations, targets,
+    link points, clearances, goal distances and success at every step (to 1e-5; in fact
+    bit-identical here)."""
+    sim = NumpyDualArmEnv(task=task)
+    arms = sim_env(NumpyDualArmEnv(task=task), NumpyDualArmEnv(task=task))
+    for ep in episodes:
+        _same_step(sim.reset(np.random.default_rng(ep)), arms.reset(np.random.default_rng(ep)))
+        rng = np.random.default_rng(100 + ep)
+        for _ in range(sim.episode_length):
+            act = rng.uniform(-1, 1, 8).astype(np.float32)
+            _same_step(sim.step_targets(*sim.command_targets(act)),
+                       arms.step_targets(*arms.command_targets(act)))
+    assert arms.refused == 0
+
+
+def test_arms_sim_differs_from_the_simulator_only_where_a_ur3_cannot_reach():
+    """~0.3 s: the one way the two paths part: the simulator's workspace box holds tool-down
+    poses outside a UR3's reach, which the simulator follows as far as its arm goes, while the
+    arms interface's joint-limit check (ArmsEnv._reachable) refuses them (the arm keeps its
+    previous target, counted in ``refused``). Reach, goals of seed 3, random actions: the same
+    up to step 27, whose left target (0.375, -0.124, 0.601) m has no joint solution."""
+    sim = NumpyDualArmEnv(task="reach")
+    arms = sim_env(NumpyDualArmEnv(task="reach"), NumpyDualArmEnv(task="reach"))
+    sim.reset(np.random.default_rng(3))
+    arms.reset(np.random.default_rng(3))
+    rng = np.random.default_rng(103)
+    for step in range(sim.episode_length):
+        act = rng.uniform(-1, 1, 8).astype(np.float32)
+        before = arms.target
+        wanted, ctrl = arms.command_targets(act)
+        a = sim.step_targets(*sim.command_targets(act))
+        b = arms.step_targets(wanted, ctrl)
+        if arms.refused:
+            refused_at = step
+            break
+        _same_step(a, b)
+    assert refused_at == 27 and arms.refused == 1
+    np.testing.assert_allclose(wanted[0], [0.375, -0.124, 0.601], atol=1e-3)
+    np.testing.assert_array_equal(b.target[0], before[0])  # the left arm kept its target
+    np.testing.assert_array_equal(b.target[1], a.target[1])
+    np.testing.assert_array_equal(a.target[0], wanted[0])  # the simulator took it
+    pose = arms.to_base_poses(wanted)[0]
+    assert joint_solution(arms._q[0], pose, iterations=100) is None
+
+
+def test_robot_client_arms_sim_gives_the_simulator_s_results(policy, tmp_path, capsys):
+    """~2.5 s: daddpg-robot-client --arms sim --fast (in-process, HTTP to an in-process
+    service; 20 episodes, seed 0, sim.toml) against the loop on the simulator stepped directly
+    with the same goals: the same success, final distances, clearance interventions and
+    smallest arm gap (the first 20 episodes of docs/DEPLOYMENT.md's sim rows), no target
+    refused."""
+    direct = _run(policy, _env(policy), 20)
+    out_json = tmp_path / "out.json"
+    with PolicyServer(policy, port=0) as srv:
+        code = robot_client.main(["--server", srv.url, "--limits", SIM_LIMITS, "--arms", "sim",
+                                  "--fast", "--episodes", "20", "--seed", "0",
+                                  "--json", str(out_json)])
+    assert code == 0, capsys.readouterr().err
+    out = json.loads(out_json.read_text())
+    assert out["arms"] == "sim" and out["joint_refusals"] == 0 and out["stops"] == 0
+    for key in ("success_rate", "mean_final_distance", "safety_counts", "min_arm_clearance"):
+        assert out[key] == pytest.approx(direct[key], abs=1e-9), key
+    assert out["success_rate"] >= 0.8
+
+
+def test_sim_arms_protective_stop_ends_the_run(policy):
+    """~0.5 s: a protective stop raised on the simulated cell ends an --arms sim run as on
+    real arms (ArmsStopped, one line)."""
+    env = sim_env(_env(policy), _env(policy))
+    cell = env.arms.cell
+
+    class Stopper(_Client):
+        def act(self, obs, goal):
+            if self.n == 4:
+                cell.emergency[0] = True
+            return super().act(obs, goal)
+
+    with pytest.raises(ArmsStopped, match="left arm is emergency stopped"):
+        _run(policy, env, 1, client=Stopper(policy))
 
 
 # -- the gripper ------------------------------------------------------------------------------

@@ -39,11 +39,12 @@ line on stderr, exit code 3. Episodes with a missed deadline are never counted i
 ("excluded_episodes" says how many). stdout holds the JSON summary; stderr ends with a short
 human-readable one.
 
-Arms (--arms): sim (default) steps the NumPy simulator; ur drives two UR arms through ur_rtde
-(pip install 'daddpg-jax[ur]'; --ur-hosts LEFT,RIGHT; reach only), streaming servoL every
-control period (a hold streams the held pose; servoStop on abort or exit); ur-sim runs the same
-UR code on simulated controllers (--sim-base-error: their bases' true error). The limits'
-calibration (daddpg-calibrate) converts between the world and the arms' base frames. --dry-run (ur,
+Arms (--arms), all behind the same arms interface: sim (default) the NumPy simulator; ur two UR
+arms through ur_rtde (pip install 'daddpg-jax[ur]'; --ur-hosts LEFT,RIGHT; reach only),
+streaming servoL every control period (a hold streams the held pose; servoStop on abort or
+exit); ur-sim the same UR code on simulated controllers (--sim-base-error: their bases' true
+error). The limits' calibration (daddpg-calibrate) converts between the world and the base
+frames of ur and ur-sim (sim uses its own exact bases). --dry-run (ur,
 ur-sim) connects read-only and logs what it would send (--log DIR: dry_run_commands.json).
 
 Exit codes: 0 done; 2 bad limits or arguments, the service unreachable at start, or serving a

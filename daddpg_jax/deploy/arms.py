@@ -4,25 +4,35 @@ import; ``ur_rtde`` is imported lazily by `connect_ur`).
 The loop (`daddpg_jax.deploy.robot.run_episode`) drives an object with the env API
 ``reset(rng, goal, qpos)``, ``command_targets(action)``, ``finger_ctrl(cmd)``,
 ``step_targets(target, ctrl)``, ``target``, ``episode_length``, ``config`` (world frame, m).
-What it needs from the arms is the interface `Arms`:
+For every kind of arms that object is `ArmsEnv`, which puts an implementation of the
+interface `Arms` behind the env API with the task's rules (goals, success), the frame
+conversion, the joint-limit check and an object source. `Arms`:
 
 - ``read()``: each tool pose ``[x, y, z, rx, ry, rz]`` (rotation vector) and speed in its arm's
   base frame, the joint angles (the clearance check builds the link points from them with
-  `daddpg_jax.deploy.ur3`) and the finger openings, with the capture time;
+  `daddpg_jax.deploy.ur3`, unless the arms measure the link points themselves) and the finger
+  openings, with the capture time (`ArmsReading`);
 - ``servo(poses)``: one Cartesian target per arm in its base frame, the tool pointing down
   (`daddpg_jax.deploy.robot.tool_down_rotvec`);
 - ``grip(openings)``: each gripper's finger opening, m;
 - ``home(poses)``: move slowly to the episode's start poses (blocking);
 - ``stop()`` / ``close()``.
 
-Implementations:
+Implementations (`make_env`):
 
-- ``--arms sim``: `mjx_envs.numpy_env.NumpyDualArmEnv` itself: the loop steps the simulator
-  directly (it has the env API; its targets are world-frame mocap positions);
+- ``--arms sim``: `daddpg_jax.deploy.ursim.SimArms`, the simulator
+  (`mjx_envs.numpy_env.NumpyDualArmEnv`, one `daddpg_jax.deploy.ursim.SimCell` with both
+  arms) answering the interface directly in each base frame; it also reports the simulator's
+  own link points, so that an episode observes, moves and succeeds as when the simulator is
+  stepped directly (`tests/test_arms.py`), except that a target a UR3 cannot reach with the
+  tool down is refused here, as for UR arms (`ArmsEnv._reachable`), where the simulator would
+  follow it as far as its arm goes;
 - ``--arms ur``: `URArms`, two ``ur_rtde`` connections (``RTDEControlInterface`` +
-  ``RTDEReceiveInterface`` per arm) and one `Gripper` per arm; `ArmsEnv` puts it behind the
-  env API with the task's rules (goals, success) and an `ObjectSource`;
+  ``RTDEReceiveInterface`` per arm) and one `Gripper` per arm;
 - ``--arms ur-sim``: the same `URArms` on `daddpg_jax.deploy.ursim`'s simulated controllers.
+
+The simulator stepped directly through its own env API (no `Arms`) remains the library's
+stand-in for in-process evaluation and `daddpg_jax.deploy.robot.replay_episode`.
 
 Frames: ``bases`` [2, 4, 4] are world <- base transforms of the two arms: the nominal
 `daddpg_jax.deploy.ur3.BASE_POS` / ``BASE_YAW`` or the calibration of the limits file
@@ -42,6 +52,7 @@ from __future__ import annotations
 import socket
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -96,6 +107,49 @@ class ArmsReading:
     fingers: np.ndarray  # [2, 2] opening of each finger, m
     captured_at: float  # monotonic seconds (time.perf_counter)
     finger_speed: np.ndarray | None = None  # [2, 2] m/s, when the grippers report it
+    link_points: np.ndarray | None = None
+    """[2, 5, 3] shoulder, elbow, wrist 1, flange, tool centre in each base frame, when the arms
+    measure them (the simulator); None: built from ``joints`` with the DH table"""
+
+
+class Arms(Protocol):
+    """The arms interface that `ArmsEnv` drives (`URArms`, `daddpg_jax.deploy.ursim.SimArms`);
+    every pose is in its arm's base frame."""
+
+    def read(self) -> ArmsReading:
+        """Both arms' state now; `ArmsStopped` when an arm is in a protective or emergency
+        stop."""
+        ...
+
+    def servo(self, poses) -> None:
+        """Stream this control period's Cartesian targets [2, 6] (tool down)."""
+        ...
+
+    def grip(self, openings) -> None:
+        """Each gripper's finger opening [2], m (not blocking)."""
+        ...
+
+    def home(self, poses) -> None:
+        """Move slowly to the start poses [2, 6] (blocking)."""
+        ...
+
+    def stop(self) -> None:
+        """Stop streaming and bring the arms to rest (abort or exit)."""
+        ...
+
+    def close(self) -> None:
+        """`stop`, then release the connections."""
+        ...
+
+
+def raise_if_stopped(emergency, protective) -> None:
+    """`ArmsStopped` (one line naming the arm) when an arm of ``emergency`` / ``protective``
+    ([2] bools, left and right) is stopped."""
+    for name, e, p in zip(ARM_NAMES, emergency, protective):
+        if e:
+            raise ArmsStopped(f"the {name} arm is emergency stopped")
+        if p:
+            raise ArmsStopped(f"the {name} arm is in a protective stop")
 
 
 # -- frames ----------------------------------------------------------------------------------
@@ -292,15 +346,9 @@ class URArms:
         self.sent: list[dict] = []
         self.stopped = False
 
-    def _check_stops(self):
-        for name, rec in zip(ARM_NAMES, self.receives):
-            if rec.isEmergencyStopped():
-                raise ArmsStopped(f"the {name} arm is emergency stopped")
-            if rec.isProtectiveStopped():
-                raise ArmsStopped(f"the {name} arm is in a protective stop")
-
     def read(self) -> ArmsReading:
-        self._check_stops()
+        raise_if_stopped([r.isEmergencyStopped() for r in self.receives],
+                         [r.isProtectiveStopped() for r in self.receives])
         t = self.clock()
         pose = np.array([r.getActualTCPPose() for r in self.receives], float)
         speed = np.array([r.getActualTCPSpeed() for r in self.receives], float)
@@ -406,14 +454,14 @@ def connect_ur(hosts, period: float, dry_run: bool = False, gripper_factory=None
 # -- the env API on top of an Arms ------------------------------------------------------------
 
 class ArmsEnv:
-    """The loop's env API on an `Arms` (`URArms`): goals, start placements, achieved goals and
-    success from ``spec``'s task rules (a `mjx_envs.numpy_env.NumpyDualArmEnv` of the served
-    task, never stepped), targets converted to each arm's base frame with ``bases`` [2, 4, 4]
-    (world <- base), observations built with `mjx_envs.observation` from the arms' read-out
-    and ``objects`` (an object source). ``truth``: a callable returning the true (arm
-    readings, object readings) of a simulated cell (`daddpg_jax.deploy.ursim.SimCell.truth`);
-    when given, achieved goals and success are the cell's ground truth, else (real arms) what
-    the arms report in the calibrated frame."""
+    """The loop's env API on an `Arms` (`URArms`, `daddpg_jax.deploy.ursim.SimArms`): goals,
+    start placements, achieved goals and success from ``spec``'s task rules (a
+    `mjx_envs.numpy_env.NumpyDualArmEnv` of the served task, never stepped), targets converted
+    to each arm's base frame with ``bases`` [2, 4, 4] (world <- base), observations built with
+    `mjx_envs.observation` from the arms' read-out and ``objects`` (an object source).
+    ``truth``: a callable returning the true (arm readings, object readings) of a simulated
+    cell (`daddpg_jax.deploy.ursim.SimCell.truth`); when given, achieved goals and success are
+    the cell's ground truth, else (real arms) what the arms report in the calibrated frame."""
 
     def __init__(self, spec, arms, bases=None, objects=None, truth=None):
         self.spec, self.arms, self.truth = spec, arms, truth
@@ -440,7 +488,8 @@ class ArmsEnv:
         R, p = self.bases[:, :3, :3], self.bases[:, :3, 3]
         grip = np.einsum("aij,aj->ai", R, reading.tool_pose[:, :3]) + p
         vel = np.einsum("aij,aj->ai", R, reading.tool_speed[:, :3])
-        links = np.stack([link_points_base(q) for q in reading.joints])         # [2, 5, 3]
+        links = (np.stack([link_points_base(q) for q in reading.joints])       # [2, 5, 3]
+                 if reading.link_points is None else np.asarray(reading.link_points, float))
         links = np.einsum("aij,akj->aki", R, links) + p[:, None, :]
         links[:, -1] = grip  # the measured tool centre
         return grip, vel, links
@@ -543,22 +592,25 @@ ARMS_KINDS = ("sim", "ur", "ur-sim")
 
 
 def make_env(kind: str, task_cfg, task: str, period: float, bases=None, hosts=None,
-             dry_run: bool = False, base_error=None, exact: bool = True):
-    """The loop's env for ``--arms kind``: ``sim`` the simulator itself; ``ur`` `URArms` on the
-    controllers at ``hosts`` (left, right; reach only: no object source for a real cell is
-    built in); ``ur-sim`` `URArms` on simulated controllers whose bases carry ``base_error``
-    ((offset [2, 3] m, yaw [2] rad)). ``bases``: the robot side's world <- base transforms
-    (`RobotLimits.base_transforms`). ArmsError (one line) when it cannot be made."""
+             dry_run: bool = False, base_error=None, exact: bool = True) -> ArmsEnv:
+    """The loop's `ArmsEnv` for ``--arms kind``: ``sim`` `daddpg_jax.deploy.ursim.SimArms` on
+    the simulator (whose bases are exactly the nominal ones: ``bases`` is not used);
+    ``ur`` `URArms` on the controllers at ``hosts`` (left, right; reach only: no object source
+    for a real cell is built in); ``ur-sim`` `URArms` on simulated controllers whose bases
+    carry ``base_error`` ((offset [2, 3] m, yaw [2] rad)). ``bases``: the robot side's world <-
+    base transforms of ``ur`` and ``ur-sim`` (`RobotLimits.base_transforms`). ArmsError (one
+    line) when it cannot be made."""
     from mjx_envs.numpy_env import NumpyDualArmEnv
 
     if kind not in ARMS_KINDS:
         raise ArmsUsageError(f"--arms must be one of {', '.join(ARMS_KINDS)}, got {kind!r}")
-    if kind == "sim":
-        if dry_run:
-            raise ArmsUsageError("--dry-run needs --arms ur or ur-sim (the simulator moves "
-                                 "nothing)")
-        return NumpyDualArmEnv(task_cfg, task=task, exact=exact)
+    if kind == "sim" and dry_run:
+        raise ArmsUsageError("--dry-run needs --arms ur or ur-sim (the simulator moves nothing)")
     spec = NumpyDualArmEnv(task_cfg, task=task, exact=exact)
+    if kind == "sim":
+        from daddpg_jax.deploy.ursim import sim_env
+
+        return sim_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact))
     if kind == "ur-sim":
         from daddpg_jax.deploy.ursim import sim_ur_env
 

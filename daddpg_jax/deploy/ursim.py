@@ -1,6 +1,8 @@
-"""A simulated UR controller pair for rehearsals (``daddpg-robot-client --arms ur-sim``): the
-subset of ur_rtde's API that `daddpg_jax.deploy.arms.URArms` calls, standing on the MuJoCo
-simulator (`mjx_envs.numpy_env.NumpyDualArmEnv`), so that the UR implementation runs unchanged.
+"""The simulated arms: `SimArms`, the simulator's implementation of the arms interface
+(``daddpg-robot-client --arms sim``), and a simulated UR controller pair for rehearsals
+(``--arms ur-sim``): the subset of ur_rtde's API that `daddpg_jax.deploy.arms.URArms` calls,
+standing on the MuJoCo simulator (`mjx_envs.numpy_env.NumpyDualArmEnv`), so that the UR
+implementation runs unchanged. Both stand on one `SimCell`.
 
 `SimCell` is the physical cell: one simulator with both arms. Each arm's base is at
 `daddpg_jax.deploy.ur3.BASE_POS` / ``BASE_YAW`` plus a calibration error (``offset`` [2, 3] m,
@@ -16,10 +18,20 @@ unpaced run steps exactly like the simulator. `SimGripper` is the simulated grip
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from daddpg_jax.deploy import robot, ur3
-from daddpg_jax.deploy.arms import Gripper, base_transform, invert
+from daddpg_jax.deploy.arms import (
+    ArmsEnv,
+    ArmsReading,
+    Gripper,
+    URArms,
+    base_transform,
+    invert,
+    raise_if_stopped,
+)
 from mjx_envs import observation as obs_lib
 from mjx_envs import randomize
 from mjx_envs.settings import OBJECTS
@@ -74,30 +86,46 @@ class SimCell:
         self.targets = self.env.home_mocap.astype(float).copy()
         self.pending.clear()
 
-    def _step(self):
+    def step(self):
+        """One control period towards ``targets`` with the finger servo targets ``ctrl``."""
         self.env.step_targets(self.targets.astype(np.float32), self.ctrl.astype(np.float32))
         self.pending.clear()
         self.steps += 1
 
-    def servo(self, arm: int, pose):
+    def set_target(self, arm: int, pose):
+        """Arm ``arm``'s target from a pose in its true base frame (position; the tool stays
+        down)."""
         self.targets[arm] = self.bases[arm, :3, :3] @ np.asarray(pose[:3], float) \
             + self.bases[arm, :3, 3]
-        self.pending.add(arm)
-        if len(self.pending) == 2:
-            self._step()
 
-    def move(self, arm: int, pose):
-        self.targets[arm] = self.bases[arm, :3, :3] @ np.asarray(pose[:3], float) \
-            + self.bases[arm, :3, 3]
+    def settle(self):
+        """Step until each tool centre is within `HOME_TOLERANCE` of its target (at most
+        `HOME_MAX_STEPS` periods)."""
         for _ in range(HOME_MAX_STEPS):
             if np.all(np.linalg.norm(self._grip_world() - self.targets, axis=-1)
                       <= HOME_TOLERANCE):
                 break
-            self._step()
+            self.step()
+
+    def servo(self, arm: int, pose):
+        self.set_target(arm, pose)
+        self.pending.add(arm)
+        if len(self.pending) == 2:
+            self.step()
+
+    def move(self, arm: int, pose):
+        self.set_target(arm, pose)
+        self.settle()
+
+    def grip(self, arm: int, opening: float):
+        self.ctrl[2 * arm:2 * arm + 2] = float(opening)
+
+    def arm_sensors(self):
+        """The arm sensors now (world frame, `mjx_envs.observation.read_arm_sensors`)."""
+        return obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
 
     def _grip_world(self):
-        arm = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
-        return np.asarray(arm["grip_pos"], float)
+        return np.asarray(self.arm_sensors()["grip_pos"], float)
 
     def truth(self):
         """The true (arm readings, object readings) in the world frame (ground truth for
@@ -107,25 +135,88 @@ class SimCell:
                 obs_lib.read_object_sensors(np, env.sensors, env._sens))
 
     # -- what a controller reports (base frame) ------------------------------------------------
+    # ``sens``: the arm sensors of `arm_sensors`, when the caller already read them
 
-    def tcp_pose(self, arm: int):
-        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+    def tcp_pose(self, arm: int, sens=None):
+        sens = self.arm_sensors() if sens is None else sens
         p = self.inv[arm, :3, :3] @ np.asarray(sens["grip_pos"][arm], float) \
             + self.inv[arm, :3, 3]
         R = self.inv[arm, :3, :3] @ self.env.data.site_xmat[self.grip_site[arm]].reshape(3, 3)
         return list(p) + list(robot.matrix_to_rotvec(R))
 
-    def tcp_speed(self, arm: int):
-        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+    def tcp_speed(self, arm: int, sens=None):
+        sens = self.arm_sensors() if sens is None else sens
         v = self.inv[arm, :3, :3] @ np.asarray(sens["grip_vel"][arm], float)
         return list(v) + [0.0, 0.0, 0.0]
 
     def joints(self, arm: int):
         return [float(x) for x in self.env._qpos[self.joint_adr[arm]]]
 
-    def fingers(self, arm: int):
-        sens = obs_lib.read_arm_sensors(np, self.env.sensors, self.env._sens)
+    def fingers(self, arm: int, sens=None):
+        sens = self.arm_sensors() if sens is None else sens
         return tuple(float(x) for x in sens["fingers"][arm])
+
+    def finger_speeds(self, arm: int, sens=None):
+        sens = self.arm_sensors() if sens is None else sens
+        return tuple(float(x) for x in sens["finger_vel"][arm])
+
+    def link_points(self, arm: int, sens=None):
+        """The simulator's link points of arm ``arm`` [5, 3] (shoulder, elbow, wrist 1,
+        flange, tool centre) in its true base frame."""
+        sens = self.arm_sensors() if sens is None else sens
+        pts = np.asarray(sens["link_points"][arm], float)
+        return pts @ self.inv[arm, :3, :3].T + self.inv[arm, :3, 3]
+
+
+class SimArms:
+    """The simulator as an implementation of the arms interface
+    (`daddpg_jax.deploy.arms.Arms`), talking to a `SimCell` directly: ``read`` reports what
+    the cell's sensors measure in each true base frame (the tool pose and speed, the joint
+    angles, the finger openings and speeds, and the simulator's own link points), ``servo``
+    steps the cell one control period, ``home`` steps it until both tools are at their start
+    poses. A protective or emergency stop raised on the cell (``cell.protective[i] = True``)
+    ends the run as on real arms."""
+
+    def __init__(self, cell: SimCell, clock=time.perf_counter):
+        self.cell, self.clock = cell, clock
+        self.stopped = False
+
+    def read(self) -> ArmsReading:
+        cell = self.cell
+        raise_if_stopped(cell.emergency, cell.protective)
+        t = self.clock()
+        sens, arms = cell.arm_sensors(), range(2)
+        return ArmsReading(
+            tool_pose=np.array([cell.tcp_pose(i, sens) for i in arms], float),
+            tool_speed=np.array([cell.tcp_speed(i, sens) for i in arms], float),
+            joints=np.array([cell.joints(i) for i in arms], float),
+            fingers=np.array([cell.fingers(i, sens) for i in arms], float),
+            captured_at=t,
+            finger_speed=np.array([cell.finger_speeds(i, sens) for i in arms], float),
+            link_points=np.stack([cell.link_points(i, sens) for i in arms]))
+
+    def servo(self, poses) -> None:
+        poses = np.asarray(poses, float).reshape(2, 6)
+        for i in range(2):
+            self.cell.set_target(i, poses[i])
+        self.cell.step()
+
+    def grip(self, openings) -> None:
+        for i, o in enumerate(np.asarray(openings, float).reshape(2)):
+            self.cell.grip(i, o)
+
+    def home(self, poses) -> None:
+        poses = np.asarray(poses, float).reshape(2, 6)
+        for i in range(2):
+            self.cell.set_target(i, poses[i])
+        self.cell.settle()
+
+    def stop(self) -> None:
+        """The simulated arms rest between control periods: nothing to send."""
+        self.stopped = True
+
+    def close(self) -> None:
+        self.stop()
 
 
 class SimRTDEControl:
@@ -188,14 +279,13 @@ class SimGripper(Gripper):
         self.cell, self.arm = cell, arm
 
     def move(self, opening: float) -> None:
-        self.cell.ctrl[2 * self.arm:2 * self.arm + 2] = float(opening)
+        self.cell.grip(self.arm, opening)
 
     def openings(self) -> tuple[float, float]:
         return self.cell.fingers(self.arm)
 
     def speeds(self) -> tuple[float, float]:
-        sens = obs_lib.read_arm_sensors(np, self.cell.env.sensors, self.cell.env._sens)
-        return tuple(float(x) for x in sens["finger_vel"][self.arm])
+        return self.cell.finger_speeds(self.arm)
 
 
 class SimObjectSource:
@@ -216,8 +306,6 @@ def sim_ur_arms(env, period: float, offset=None, yaw=None, dry_run: bool = False
     """(`URArms` on a simulated cell, the cell, its object source): ``env`` a fresh
     `NumpyDualArmEnv` of the task (the cell's physics), the calibration error ``offset`` [2, 3]
     m and ``yaw`` [2] rad of the true bases."""
-    from daddpg_jax.deploy.arms import URArms
-
     cell = SimCell(env, offset, yaw)
     controls = None if dry_run else [SimRTDEControl(cell, i) for i in range(2)]
     receives = [SimRTDEReceive(cell, i) for i in range(2)]
@@ -231,7 +319,15 @@ def sim_ur_env(spec, cell_env, period: float, bases=None, offset=None, yaw=None,
     `NumpyDualArmEnv` of the task) with its object source and ground truth; ``bases``: the robot
     side's world <- base transforms (default nominal), ``offset``/``yaw``: the cell's
     calibration error."""
-    from daddpg_jax.deploy.arms import ArmsEnv
-
     arms, cell, objects = sim_ur_arms(cell_env, period, offset, yaw, dry_run)
     return ArmsEnv(spec, arms, bases=bases, objects=objects, truth=cell.truth)
+
+
+def sim_env(spec, cell_env, bases=None, offset=None, yaw=None):
+    """`daddpg_jax.deploy.arms.ArmsEnv` of `SimArms` on a simulated cell (``cell_env``, a
+    `NumpyDualArmEnv` of the task) with its object source and ground truth (``--arms sim``);
+    ``bases``: the robot side's world <- base transforms (default nominal), ``offset``/``yaw``:
+    the cell's calibration error (default none)."""
+    cell = SimCell(cell_env, offset, yaw)
+    return ArmsEnv(spec, SimArms(cell), bases=bases, objects=SimObjectSource(cell),
+                   truth=cell.truth)
