@@ -1,18 +1,22 @@
 """Eval-time probe: the C-trained pot policy on both engines with the finger-handle pairs
-changed (no retraining): which change narrows the engines' gap without hurting C?"""
+changed (no retraining): which change narrows the engines' gap without hurting C?
+
+    python docs/results/engines/pot_v2_s0/handle_probe.py RUN [CANDIDATE ...]
+
+RUN: the pot preset's run directory; writes handle_probe.json in the working directory."""
 import json, sys
 import numpy as np
 from daddpg_jax.analysis import evaluation
 from mjx_envs.physics.backends import import_mjx
 
-R = "/work/runs/v2/pot_s0"
+R = sys.argv[1]
 CANDS = {
     "nominal": {},
     "handle_solref_0.04": dict(solref=(0.04, 1.0)),
     "handle_solimp_soft": dict(solimp=(0.9, 0.95, 0.001)),
     "handle_friction_1.0": dict(friction=(1.0, 1.0, 0.01, 0.0001, 0.0001)),
 }
-names = sys.argv[1:] or list(CANDS)
+names = sys.argv[2:] or list(CANDS)
 out = {}
 for name in names:
     res = {}
@@ -34,4 +38,4 @@ for name in names:
     out[name] = dict(c=float(c.mean()), mjx=float(mj.mean()), c_only=int((c & ~mj).sum()),
                      mjx_only=int((mj & ~c).sum()))
     print(name, out[name], flush=True)
-json.dump(out, open("/work/runs/v2/pot_probe.json", "w"), indent=1)
+json.dump(out, open("handle_probe.json", "w"), indent=1)
