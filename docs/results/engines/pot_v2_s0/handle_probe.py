@@ -4,8 +4,9 @@ changed (no retraining): which change narrows the engines' gap without hurting C
     python docs/results/engines/pot_v2_s0/handle_probe.py RUN [CANDIDATE ...]
 
 RUN: the pot preset's run directory; writes handle_probe.json in the working directory."""
-import json, sys
-import numpy as np
+import json
+import sys
+
 from daddpg_jax.analysis import evaluation
 from mjx_envs.physics.backends import import_mjx
 
