@@ -358,10 +358,15 @@ class URArms:
         fs = None if any(v is None for v in speeds) else np.array(speeds, float)
         return ArmsReading(pose, speed, q, fingers, t, fs)
 
+    def _dry(self, command: str, values) -> bool:
+        """In a dry run, records what `command` would send (in ``sent``) and returns True."""
+        if self.dry_run:
+            self.sent.append({command: values.round(6).tolist()})
+        return self.dry_run
+
     def servo(self, poses) -> None:
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
-        if self.dry_run:
-            self.sent.append(dict(servoL=poses.round(6).tolist()))
+        if self._dry("servoL", poses):
             return
         for c, p in zip(self.controls, poses):
             c.servoL(p.tolist(), SERVO_SPEED, SERVO_ACCEL, self.period, SERVO_LOOKAHEAD_S,
@@ -369,16 +374,14 @@ class URArms:
 
     def grip(self, openings) -> None:
         openings = np.asarray(openings, float).reshape(NUM_ARMS)
-        if self.dry_run:
-            self.sent.append(dict(grip=openings.round(6).tolist()))
+        if self._dry("grip", openings):
             return
         for g, o in zip(self.grippers, openings):
             g.move(float(o))
 
     def home(self, poses) -> None:
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
-        if self.dry_run:
-            self.sent.append(dict(moveL=poses.round(6).tolist()))
+        if self._dry("moveL", poses):
             return
         for c, p in zip(self.controls, poses):
             c.moveL(p.tolist(), HOME_SPEED, HOME_ACCEL)
