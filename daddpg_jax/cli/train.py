@@ -27,66 +27,22 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import textwrap
 import time
 
-from daddpg_jax.algo.config import (
-    DEVICES,
-    HER_MODES,
-    PHYSICS,
-    TrainConfig,
-    build_config,
-    preset,
-    preset_env,
-    robust_env,
-)
+from daddpg_jax.algo.config import DEVICES, HER_MODES, PHYSICS, TrainConfig, guess_device
+from daddpg_jax.algo.resolve import field_help, resolve_config
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
+from daddpg_jax.running import distributed, tracking
 from mjx_envs import schema, settings
 from mjx_envs.schema import ConfigError
 
-# flags that are also TrainConfig fields: flag attribute -> field
-_FIELD_FLAGS = ("algo", "her", "physics", "seed")
-
-
-def help_epilog(device: str) -> str:
-    """The field listing of --help: every training field with its value for each task at the
-    default num_envs on `device`, and every env field with each task's value."""
-    tasks = settings.TASKS
-    cfgs = {t: build_config(t, device=device) for t in tasks}
-    envs = {t: settings.task_config(t, **preset_env(t)) for t in tasks}
-    head = " | ".join(tasks)
-    out = [f"training fields for --set KEY=VALUE (value for {head} at the default --num-envs "
-           f"on {device}; meaning):"]
-    out += _field_lines(TrainConfig, cfgs)
-    out += ["", f"env fields for --env KEY=VALUE (value for {head} in a new run, with the "
-            "task's training preset; '-' where a task lacks the field; meaning):"]
-    # the task config class with the most fields holds every other task's (e.g. pickup's)
-    out += _field_lines(max((type(e) for e in envs.values()), key=lambda c: len(schema.fields(c))),
-                        envs)
-    return "\n".join(out)
-
-
-def _field_lines(cls, objs: dict) -> list:
-    docs = schema.docs(cls)
-    lines = []
-    for name in schema.fields(cls):
-        vals = [schema.describe_value(getattr(o, name)) if hasattr(o, name) else "-"
-                for o in objs.values()]
-        shown = vals[0] if len(set(vals)) == 1 else " | ".join(vals)
-        lines.append(textwrap.fill(f"{name} ({shown}): {docs[name]}", width=100,
-                                   initial_indent="  ", subsequent_indent="      ",
-                                   break_on_hyphens=False, break_long_words=False))
-    return lines
-
 
 def build_parser(device: str | None = None):
-    from daddpg_jax.algo.config import guess_device
-
     # --help and argument errors stay JAX-free: the device JAX would pick, guessed from what is
     # installed (the run itself asks JAX: resolve -> build_config)
     device = device or guess_device()
     p = argparse.ArgumentParser(
-        prog="daddpg-train", description=__doc__, epilog=help_epilog(device),
+        prog="daddpg-train", description=__doc__, epilog=field_help(device),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", choices=settings.TASKS, default=None,
                    help="task to train (default reach; taken from config.json with --resume "
@@ -167,8 +123,6 @@ def build_parser(device: str | None = None):
 
 
 def _add_distributed_flags(p) -> None:
-    from daddpg_jax.running.distributed import DEFAULT_TIMEOUT
-
     g = p.add_argument_group(
         "multi-process training (docs/SCALING.md; every process runs the same command, only "
         "--process-id differs; without these flags the cluster's variables are used when they "
@@ -179,17 +133,15 @@ def _add_distributed_flags(p) -> None:
                    help="number of processes in the job")
     g.add_argument("--process-id", type=int, default=None, metavar="I",
                    help="this process's id, 0 .. N-1 (process 0 writes the run's files)")
-    g.add_argument("--distributed-timeout", type=float, default=DEFAULT_TIMEOUT,
+    g.add_argument("--distributed-timeout", type=float, default=distributed.DEFAULT_TIMEOUT,
                    metavar="SECONDS",
                    help="give up joining the job after this long, with an error "
-                        f"(default {DEFAULT_TIMEOUT:g})")
+                        f"(default {distributed.DEFAULT_TIMEOUT:g})")
 
 
 def join_job(argv=None):
     """Joins a multi-process job when the flags or the cluster's variables ask for one (before
     anything else uses JAX); returns its Layout or None. Exits 2 with one line on failure."""
-    from daddpg_jax.running import distributed
-
     pre = argparse.ArgumentParser(add_help=False)
     _add_distributed_flags(pre)
     args, _ = pre.parse_known_args(argv)
@@ -201,128 +153,21 @@ def join_job(argv=None):
         sys.exit(2)
 
 
-def _recorded(path: str):
-    """(TrainConfig, env overrides) of a config.json (or of a run directory holding one)."""
-    from daddpg_jax.running import checkpoint as ckpt
-
-    run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
-    if not os.path.exists(os.path.join(run_dir, "config.json")):
-        raise ConfigError(f"{path}: no config.json there")
-    try:
-        cfg, payload = ckpt.load_config(run_dir)
-    except ckpt.ConfigFileError as e:
-        raise ConfigError(str(e)) from None
-    return cfg, dict(payload.get("env_overrides", {}))
-
-
-def _check_out(path: str, force: bool) -> None:
-    """A new run's directory: new, empty, or (with force) a run to replace; else ConfigError."""
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise ConfigError(f"--out {path}: is a file, not a directory")
-    parent = os.path.dirname(os.path.abspath(path))
-    while not os.path.exists(parent):
-        parent = os.path.dirname(parent)
-    if not os.path.isdir(parent):
-        raise ConfigError(f"--out {path}: {parent} is a file, not a directory")
-    from daddpg_jax.running import checkpoint as ckpt
-
-    if ckpt.is_empty_run_dir(path):
-        return
-    if not force:
-        what = "a run" if ckpt.is_run_dir(path) else "other files"
-        raise ConfigError(f"--out {path}: directory is not empty (it holds {what}); continue "
-                          f"a run with --resume {path}, replace it with --force, or choose "
-                          "another --out")
-    if not ckpt.is_run_dir(path):
-        raise ConfigError(f"--out {path}: --force replaces only a run (a directory with the "
-                          "config.json of a run), and it holds other files")
-
-
-def resolve(args, parser, check_out: bool = True):
+def resolve(args, parser=None, check_out: bool = True):
     """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError.
-    check_out=False leaves a new run's directory unchecked (see `_new_run_dir`)."""
-    if args.resume and args.config:
-        raise ConfigError("--resume and --config exclude each other")
-    if args.resume and args.force:
-        raise ConfigError("--resume and --force exclude each other (--force deletes the run)")
-    if args.force and not args.out:
-        raise ConfigError("--force needs --out (the run directory to replace)")
-    if args.resume:
-        cfg, env_over = _recorded(args.resume)
-        for name in ("task", "num_envs", *_FIELD_FLAGS):
-            v = getattr(args, name)
-            if v is not None and v != getattr(cfg, name):
-                raise ConfigError(f"--resume: --{name.replace('_', '-')} differs from the run's "
-                                  f"config ({getattr(cfg, name)!r}); start a new run instead")
-        if args.robust:
-            raise ConfigError("--resume: --robust is decided by the run's config; start a new "
-                              "run instead")
-        if args.demos is not None and args.demos != cfg.n_demos:
-            raise ConfigError(f"--resume: --demos differs from the run's config "
-                              f"({cfg.n_demos}); start a new run instead")
-        run_dir = args.resume if os.path.isdir(args.resume) else os.path.dirname(
-            os.path.abspath(args.resume))
-        if args.out and os.path.abspath(args.out) != os.path.abspath(run_dir):
-            raise ConfigError("--resume continues the run in its own directory; drop --out")
-    elif args.config:
-        cfg, env_over = _recorded(args.config)
-        if args.task is not None or args.num_envs is not None:
-            # a new task or size: that preset's fields replace the recorded ones
-            cfg = cfg.replace(**preset(args.task or cfg.task, args.num_envs or cfg.num_envs,
-                                       device=args.device))
-        run_dir = None
-    else:
-        task = args.task or "reach"
-        cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
-        run_dir = None
-    if args.robust:   # a resume refused --robust above
-        env_over.update(robust_env(cfg.task))
-    over = {k: getattr(args, k) for k in _FIELD_FLAGS if getattr(args, k) is not None}
-    over.update(schema.parse_overrides(TrainConfig, args.set, "--set"))
-    if args.epochs is not None:
-        over["n_epochs"] = args.epochs
-    if args.save_buffer:
-        over["save_buffer"] = True
-    if args.demos is not None:
-        over["n_demos"] = args.demos
-    cfg = cfg.replace(**over)
-    env_cls = type(settings.default_config(cfg.task))
-    env_over.update(schema.parse_overrides(env_cls, args.env, "--env"))
-    settings.task_config(cfg.task, **env_over)   # validates the env fields together
-    if cfg.n_demos > 0:
-        from mjx_envs.tasks import scripted
-
-        if cfg.task not in scripted.POLICIES:
-            raise ConfigError(f"--demos: task {cfg.task!r} has no scripted controller "
-                              f"(available: {', '.join(sorted(scripted.POLICIES))})")
+    check_out=False leaves a new run's directory unchecked (main claims it: run_dirs.claim_new)."""
+    # lazy: these import JAX, and --help and argument errors stay JAX-free
+    from daddpg_jax.running import run_dirs
     from daddpg_jax.running.runner import check_physics_backend
 
+    cfg, env_over = resolve_config(args, run_dirs.recorded)
+    run_dir = run_dirs.resumed(args.resume, args.out) if args.resume else None
     check_physics_backend(cfg.physics, cfg.num_envs)
     if run_dir is None:
-        run_dir = args.out or os.path.join(
-            "runs", f"{cfg.task}_{cfg.algo}_s{cfg.seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+        run_dir = args.out or run_dirs.default_name(cfg)
         if check_out:
-            _check_out(run_dir, args.force)
+            run_dirs.check_out(run_dir, args.force)
     return cfg, env_over, run_dir
-
-
-def _new_run_dir(args, run_dir: str) -> str:
-    """A new run's directory as process 0 names and checks it, on every process (the default
-    name holds the time); ConfigError everywhere when process 0's check fails."""
-    from daddpg_jax.running import distributed
-
-    def check(path):
-        from daddpg_jax.running import checkpoint as ckpt
-
-        _check_out(path, args.force)
-        try:   # held until the process ends: a second run on this --out stops here
-            ckpt.lock_run_dir(path)
-        except ckpt.RunLockedError as e:
-            raise ConfigError(str(e)) from None
-        _check_out(path, args.force)   # again, under the lock (two runs started at once)
-        return path
-
-    return distributed.on_primary(check, run_dir, errors=(ConfigError,))
 
 
 class Progress:
@@ -419,22 +264,9 @@ class _PlainProgress:
         pass
 
 
-def _lock_resumed(run_dir: str) -> None:
-    """Takes the lock of a run to resume (held until the process ends); ConfigError when
-    another process holds it."""
-    from daddpg_jax.running import checkpoint as ckpt
-
-    try:
-        ckpt.lock_run_dir(run_dir)
-    except ckpt.RunLockedError as e:
-        raise ConfigError(str(e)) from None
-
-
 def _loggers(args, run_dir: str) -> list:
     """The experiment trackers the flags ask for: TensorBoard unless --no-tensorboard, W&B with
     --wandb (ConfigError when wandb is not installed)."""
-    from daddpg_jax.running import tracking
-
     out = [] if args.no_tensorboard else [tracking.TensorBoardLogger(run_dir)]
     if args.wandb:
         out.append(tracking.WandbLogger(run_dir, project=args.wandb))
@@ -460,19 +292,20 @@ def main(argv=None):
         schema.parse_overrides(TrainConfig, args.set, "--set")   # JAX-free: before the device
         cfg, env_over, run_dir = resolve(args, parser, check_out=False)
         loggers = _loggers(args, run_dir)
+        # lazy: imports JAX, and --help and argument errors stay JAX-free
+        from daddpg_jax.running import run_dirs
+
         if not args.resume:
-            run_dir = _new_run_dir(args, run_dir)
+            run_dir = run_dirs.claim_new(run_dir, args.force)
         elif layout is None or layout.process_id == 0:
-            _lock_resumed(run_dir)
+            run_dirs.lock(run_dir)
     except ConfigError as e:
         parser.error(str(e))
     try:
         return _run(args, layout, cfg, env_over, run_dir, loggers)
     finally:
         if layout is None or layout.process_id == 0:
-            from daddpg_jax.running import checkpoint as ckpt
-
-            ckpt.unlock_run_dir(run_dir)
+            run_dirs.unlock(run_dir)
 
 
 def _run(args, layout, cfg, env_over, run_dir, loggers) -> int:
