@@ -2,7 +2,7 @@
 # One short check of a GPU machine (at most ~5 minutes on one H100/H200): MJX env throughput,
 # train_epoch throughput and compile time, and reach + push trained towards 0.9 test success.
 # Writes OUT/gpu_check.json and OUT/gpu_check.md after every stage (a run cut off still leaves
-# figures). The logic is daddpg_jax/analysis/gpu_check.py; this wrapper only sets up Python.
+# figures). The logic is daddpg_jax/tools/gpu_check.py; this wrapper only sets up Python.
 #
 #   bash experiments/gpu_check.sh --out gpu_check                 # the current environment
 #   bash experiments/gpu_check.sh --wheels .whl --out gpu_check   # bare CUDA JAX image: install
@@ -36,4 +36,4 @@ if [ -n "$wheels" ]; then
 else
   export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
 fi
-exec "$PYTHON" -m daddpg_jax.analysis.gpu_check ${args[@]+"${args[@]}"}
+exec "$PYTHON" -m daddpg_jax.tools.gpu_check ${args[@]+"${args[@]}"}

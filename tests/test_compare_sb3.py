@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from daddpg_jax.cli import compare_sb3
+from daddpg_jax.tools import sb3_compare
 from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -33,7 +34,7 @@ def test_compare_rejects_unknown_method(tmp_path, capsys):
 
 
 def _parse(*argv):
-    return compare_sb3, compare_sb3.build_parser().parse_args(list(argv))
+    return sb3_compare, compare_sb3.build_parser().parse_args(list(argv))
 
 
 def test_sb3_schedule_matches_ours_per_cycle():

@@ -1,4 +1,4 @@
-"""The GPU check (experiments/gpu_check.sh, daddpg_jax.analysis.gpu_check) in its --smoke mode
+"""The GPU check (experiments/gpu_check.sh, daddpg_jax.tools.gpu_check) in its --smoke mode
 on the CPU: every stage leaves figures in the JSON and the markdown; a failed or cut-off stage
 is recorded and the next one runs."""
 
@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from daddpg_jax.analysis import gpu_check
+from daddpg_jax.tools import gpu_check
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STAGES = ["env", "train_epoch", "learn_reach", "learn_push"]
