@@ -250,8 +250,7 @@ def test_test_overrides_switch_the_options_off():
 
 
 def test_robot_client_runs_the_standard_task(monkeypatch):
-    from daddpg_jax.cli import robot_client
-    from daddpg_jax.deploy import server
+    from daddpg_jax.deploy import robot_session, server
     from daddpg_jax.deploy.limits import RobotLimits
 
     env = {**schema.to_dict(settings.default_config("pickup")), "goal_rest_fraction": 0.5,
@@ -269,7 +268,7 @@ def test_robot_client_runs_the_standard_task(monkeypatch):
 
     monkeypatch.setattr(server, "PolicyClient", FakeClient)
     limits = RobotLimits(control_period=0.04)
-    _, task_cfg, env_settings = robot_client._served("http://x", limits, None, None, None)
+    _, task_cfg, env_settings = robot_session.served_policy("http://x", limits, None, None, None)
     assert task_cfg == settings.default_config("pickup")
     assert env_settings["grasp_start_fraction"] == 0.0 and env_settings["dt"] == 0.04
 

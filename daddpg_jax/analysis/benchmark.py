@@ -12,17 +12,24 @@
 
 from __future__ import annotations
 
-import dataclasses
+import collections
+import glob
 import os
+import re
 import resource
+import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
+import mjx_envs
 from daddpg_jax.algo import acting
+from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.running.host import host_info
+from mjx_envs.tasks import scripted
 
 
 def machine_description() -> str:
@@ -112,8 +119,6 @@ def train_throughput(env, cfg, repeats: int = 2, rollout_split: bool = True) -> 
     machine. rollout_split: also time the exploration rollout of one cycle alone (its own
     compiled program) to split a cycle into rollout and the rest (insert, normalizer, updates).
     """
-    from daddpg_jax.algo.train import make_train_fns
-
     T = int(env.episode_length)
     fns = make_train_fns(env, cfg)
     state = fns.init()
@@ -165,13 +170,8 @@ def op_profile(env, cfg, logdir: str, top: int = 12) -> dict:
     fusions, gathers, copies and the physics ``pure_callback`` can be read off. Returns
     {"total_ms", "wall_s", "ops": [[name, ms, share, count], ...]} (``top`` largest).
     """
-    import collections
-    import glob
-    import re
-
+    # lazy: a private JAX module (its place may change between versions), for --profile only
     from jax._src.lib import _profile_data
-
-    from daddpg_jax.algo.train import make_train_fns
 
     fns = make_train_fns(env, cfg)
     state = fns.init()
@@ -218,16 +218,12 @@ def contacts_per_step(env, num_envs: int = 8, steps: int | None = None, seed: in
     count of ``contact.dist < contact.includemargin`` in the ``mjx.Data`` after each step, in
     the compiled rollout. Scenes without collision pairs report 0 without rolling out.
     """
-    import mujoco
-
     T = int(steps or env.episode_length)
     base = {"task": env.task_name, "physics": env.physics, "num_envs": num_envs, "steps": T,
             "policy": policy}
     if not _has_contacts(env.mj_model):
         return dict(base, contacts_mean=0.0, contacts_max=0, contact_pairs=0)
     if policy == "scripted":
-        from mjx_envs.tasks import scripted
-
         act_fn = scripted.get_policy(env.task_name)
     else:
         act_fn = None
@@ -273,27 +269,73 @@ def contacts_per_step(env, num_envs: int = 8, steps: int | None = None, seed: in
                 contacts_mean_final=float(ncon[-1].mean()), contact_pairs=int(env.mj_model.npair))
 
 
-def parse_overrides(items, dataclass_type, what: str) -> dict:
-    """KEY=VALUE strings -> dict typed like the dataclass defaults (tuples: comma lists)."""
-    defaults = {f.name: f.default for f in dataclasses.fields(dataclass_type)}
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ValueError(f"{what} expects KEY=VALUE, got {item!r}")
-        k, v = (x.strip() for x in item.split("=", 1))
-        k = k.replace("-", "_")
-        if k not in defaults:
-            raise ValueError(f"unknown {what} field {k!r}")
-        d = defaults[k]
-        if isinstance(d, bool):
-            out[k] = v.lower() in ("1", "true", "yes", "on")
-        elif isinstance(d, tuple):
-            kind = type(d[0]) if d and not isinstance(d[0], tuple) else float
-            out[k] = tuple(kind(p) for p in v.strip("()").split(",") if p.strip())
-        elif isinstance(d, int):
-            out[k] = int(float(v))
-        elif isinstance(d, float):
-            out[k] = float(v)
-        else:
-            out[k] = v
-    return out
+# ------------------------------------------------------------ daddpg-benchmark's tables -------
+
+def _table(hdr: str, log) -> None:
+    log(hdr)
+    log("-" * len(hdr))
+
+
+def env_table(tasks, engines, sizes, env_over: dict, steps: int = 50, repeats: int = 3,
+              contacts: str = "auto", contact_envs: int = 8, log=print):
+    """Env-only throughput rows (`env_throughput`, every task x engine x size) and contact rows
+    (`contacts_per_step`; contacts: auto = for scenes with contact pairs, on, off); `log`
+    gets the table's lines."""
+    env_rows, contact_rows = [], []
+    log("\n[env] env-only throughput (random actions)")
+    _table(f"{'task':8s} {'engine':6s} {'envs':>6s} {'control/s':>12s} {'physics/s':>12s} "
+           f"{'compile s':>10s}", log)
+    for task in tasks:
+        for physics in engines:
+            env = mjx_envs.make(task, physics=physics, **env_over)
+            for n in sizes:
+                r = env_throughput(env, n, n_steps=steps, repeats=repeats)
+                r["load"] = load()
+                env_rows.append(r)
+                log(f"{task:8s} {physics:6s} {n:6d} {r['control_steps_per_s']:12,.0f} "
+                    f"{r['physics_steps_per_s']:12,.0f} {r['compile_s']:10.1f}")
+            if contacts == "on" or (contacts == "auto" and _has_contacts(env.mj_model)):
+                c = contacts_per_step(env, num_envs=contact_envs)
+                contact_rows.append(c)
+                log(f"{task:8s} {physics:6s} contacts/step over {contact_envs} scripted "
+                    f"episodes: mean {c['contacts_mean']:.2f}, max {c['contacts_max']}")
+    return env_rows, contact_rows
+
+
+def train_table(tasks, engines, sizes, env_over: dict, make_cfg, repeats: int = 2, log=print):
+    """Training throughput rows (`train_throughput` of the compiled train_epoch, every task x
+    engine x size; `make_cfg(env, task, physics, num_envs)` gives the TrainConfig); `log`
+    gets the table's lines."""
+    rows = []
+    _table(f"{'task':8s} {'engine':6s} {'envs':>6s} {'dev':>3s} {'batch':>6s} {'upd/cyc':>7s} "
+           f"{'env st/s':>10s} {'upd/s':>8s} {'compile s':>9s} {'rollout%':>8s} "
+           f"{'cpu s/cyc':>9s} {'RSS MB':>8s} {'dev MB':>8s}", log)
+    for task in tasks:
+        for physics in engines:
+            env = mjx_envs.make(task, physics=physics, **env_over)
+            for n in sizes:
+                r = train_throughput(env, make_cfg(env, task, physics, n), repeats=repeats)
+                r["load"] = load()
+                rows.append(r)
+                dev_mb = r.get("device_peak_mb")
+                dev = "-" if dev_mb is None else f"{dev_mb:8.0f}"
+                log(f"{task:8s} {physics:6s} {n:6d} {r['num_devices']:3d} "
+                    f"{r['batch_size']:6d} {r['n_batches']:7d} {r['env_steps_per_s']:10,.0f} "
+                    f"{r['updates_per_s']:8.1f} {r['compile_s']:9.1f} "
+                    f"{100 * r.get('rollout_share', float('nan')):7.0f}% "
+                    f"{r['cpu_s_per_cycle']:9.2f} {r['host_peak_rss_mb']:8.0f} {dev:>8s}")
+    return rows
+
+
+def profile_table(task: str, physics: str, n: int, env_over: dict, make_cfg, log=print) -> dict:
+    """`op_profile` of one epoch of `task` at n envs (trace in a new temporary directory), with
+    its breakdown as lines to `log`."""
+    env = mjx_envs.make(task, physics=physics, **env_over)
+    cfg = make_cfg(env, task, physics, n)
+    profile = op_profile(env, cfg, tempfile.mkdtemp(prefix="daddpg_prof_"))
+    profile.update(task=task, physics=physics, num_envs=n)
+    log(f"\n[profile] {task} {physics} {n} envs: one epoch of {cfg.n_cycles} cycles, "
+        f"{profile['wall_s']:.2f} s wall, {profile['total_ms']:.0f} ms of XLA op time")
+    for name, ms, share, count in profile["ops"]:
+        log(f"  {name:32s} {ms:9.1f} ms {100 * share:5.1f}% {count:7d} calls")
+    return profile

@@ -161,6 +161,26 @@ def compare(policies: dict, episodes: int = 100, seed: int | None = None, chunk=
     return summary, trajs
 
 
+def compare_report(policies: dict, episodes: int = 100, seed: int | None = None,
+                   divergence_dir: str | None = None, report=None, **eval_opts):
+    """`compare`, and with divergence_dir the divergence profile of the two engines'
+    trajectories written there (`write_divergence`; its paths in summary["divergence"]).
+    Returns (summary, text): the text is `format_comparison` plus the divergence files."""
+    summary, trajs = compare(policies, episodes, seed, report=report, **eval_opts)
+    if divergence_dir:
+        a, b = summary["difference"]["engines"]
+        first = policies[a]
+        profile = divergence_profile(trajs[a], trajs[b], dt=first.env.dt)
+        title = (f"{first.cfg.task} / {os.path.basename(os.path.abspath(first.run_dir))} / "
+                 f"checkpoint {first.step}: {a} vs {b}, {episodes} episodes")
+        summary["divergence"] = {k: os.path.abspath(v) for k, v in
+                                 write_divergence(profile, divergence_dir, title).items()}
+    text = format_comparison(summary)
+    if divergence_dir:
+        text += f"\ndivergence: {summary['divergence']['csv']}, {summary['divergence']['png']}"
+    return summary, text
+
+
 def format_comparison(s: dict) -> str:
     """The text summary of `compare`."""
     a, b = s["difference"]["engines"]

@@ -424,6 +424,17 @@ def write_video(policy: Policy, traj: dict, path: str, n_episodes: int = 3, widt
     return write_frames(path, frames, int(round(1.0 / policy.env.dt)))
 
 
+def add_video(summary: dict, policy: Policy, traj: dict, path: str, n_episodes: int = 3,
+              width: int = 480, height: int = 360) -> str | None:
+    """`write_video`, its path recorded in summary["video"]; returns a note when a GIF was
+    written instead of the mp4 asked for (no mp4 writer), else None."""
+    written = write_video(policy, traj, path, n_episodes, width, height)
+    summary["video"] = os.path.abspath(written)
+    if written != path:
+        return f"note: no mp4 writer (pip install imageio-ffmpeg); wrote a GIF: {written}"
+    return None
+
+
 def write_frames(path: str, frames: list, fps: int) -> str:
     """Writes RGB frames as an mp4 (imageio + imageio-ffmpeg), or a GIF when `path` ends in
     .gif or no mp4 writer is installed (beside `path`). Returns the path written."""

@@ -121,6 +121,29 @@ def write_outputs(rows: list[dict], grid: dict[str, list], out_dir: str, meta: d
     return paths
 
 
+def run_grid(policy, grid: dict[str, list], episodes: int, seed: int | None, out_dir: str,
+             log=None, **eval_opts) -> dict:
+    """Evaluates `policy` at every point of `grid` (`evaluate_grid`) and writes the outputs
+    (`write_outputs`) to out_dir; returns their paths. log: optional callable(line), one
+    progress line per point."""
+    n = len(grid_points(grid))
+    done = []
+
+    def report(row):
+        done.append(row)
+        if log is not None:
+            point = ", ".join(f"{k}={row[k]}" for k in grid)
+            log(f"[{len(done)}/{n}] {point}: success {row['success_rate']:.3f}")
+
+    rows = evaluate_grid(policy, grid, episodes, seed, report=report, **eval_opts)
+    run = os.path.basename(os.path.abspath(policy.run_dir))
+    meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
+                best=policy.best, task=policy.cfg.task, algo=policy.cfg.algo,
+                title=f"{policy.cfg.task} / {run} / {'best ' if policy.best else ''}"
+                      f"checkpoint {policy.step}")
+    return write_outputs(rows, grid, out_dir, meta)
+
+
 def perturbation_figure(rows: list[dict], grid: dict[str, list], title: str = ""):
     """Success (with its 95 % Wilson interval) against each perturbation, the others at their
     first value; axes with units, integer ticks for integer fields."""

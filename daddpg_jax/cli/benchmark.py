@@ -19,6 +19,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -69,92 +70,14 @@ def build_parser():
     return p
 
 
-def _table(hdr: str) -> None:
-    print(hdr)
-    print("-" * len(hdr))
-
-
-def env_mode(args, env_over, sizes):
-    """Env-only throughput rows and contact rows."""
-    import mjx_envs
-    from daddpg_jax.analysis import benchmark as bm
-
-    env_rows, contact_rows = [], []
-    print("\n[env] env-only throughput (random actions)")
-    _table(f"{'task':8s} {'engine':6s} {'envs':>6s} {'control/s':>12s} {'physics/s':>12s} "
-           f"{'compile s':>10s}")
-    for task in args.tasks:
-        for physics in args.physics:
-            env = mjx_envs.make(task, physics=physics, **env_over)
-            for n in sizes:
-                r = bm.env_throughput(env, n, n_steps=args.steps, repeats=args.repeats)
-                r["load"] = bm.load()
-                env_rows.append(r)
-                print(f"{task:8s} {physics:6s} {n:6d} {r['control_steps_per_s']:12,.0f} "
-                      f"{r['physics_steps_per_s']:12,.0f} {r['compile_s']:10.1f}", flush=True)
-            if args.contacts == "on" or (args.contacts == "auto"
-                                         and bm._has_contacts(env.mj_model)):
-                c = bm.contacts_per_step(env, num_envs=args.contact_envs)
-                contact_rows.append(c)
-                print(f"{task:8s} {physics:6s} contacts/step over {args.contact_envs} scripted "
-                      f"episodes: mean {c['contacts_mean']:.2f}, max {c['contacts_max']}",
-                      flush=True)
-    return env_rows, contact_rows
+def _log(line: str) -> None:
+    print(line, flush=True)
 
 
 def _train_config(env, task, physics, n, args, sets):
     over = preset(task, n, episode_length=env.episode_length, device=args.device)
     over.update(physics=physics, n_cycles=args.n_cycles)
     return TrainConfig(**{**over, **sets})
-
-
-def train_mode(args, env_over, sets, sizes, train_physics):
-    """Training throughput rows (the compiled train_epoch at each size)."""
-    import mjx_envs
-    from daddpg_jax.analysis import benchmark as bm
-
-    rows = []
-    print(f"\n[train] compiled train_epoch, {args.device or current_device()} preset, "
-          f"n_cycles={args.n_cycles}" + (f", overrides {sets}" if sets else ""))
-    _table(f"{'task':8s} {'engine':6s} {'envs':>6s} {'dev':>3s} {'batch':>6s} {'upd/cyc':>7s} "
-           f"{'env st/s':>10s} {'upd/s':>8s} {'compile s':>9s} {'rollout%':>8s} "
-           f"{'cpu s/cyc':>9s} {'RSS MB':>8s} {'dev MB':>8s}")
-    for task in args.tasks:
-        for physics in train_physics:
-            env = mjx_envs.make(task, physics=physics, **env_over)
-            for n in sizes:
-                cfg = _train_config(env, task, physics, n, args, sets)
-                r = bm.train_throughput(env, cfg, repeats=max(1, min(args.repeats, 2)))
-                r["load"] = bm.load()
-                rows.append(r)
-                dev_mb = r.get("device_peak_mb")
-                dev = "-" if dev_mb is None else f"{dev_mb:8.0f}"
-                print(f"{task:8s} {physics:6s} {n:6d} {r['num_devices']:3d} "
-                      f"{r['batch_size']:6d} {r['n_batches']:7d} {r['env_steps_per_s']:10,.0f} "
-                      f"{r['updates_per_s']:8.1f} {r['compile_s']:9.1f} "
-                      f"{100 * r.get('rollout_share', float('nan')):7.0f}% "
-                      f"{r['cpu_s_per_cycle']:9.2f} {r['host_peak_rss_mb']:8.0f} {dev:>8s}",
-                      flush=True)
-    return rows
-
-
-def profile_mode(args, env_over, sets, n, physics):
-    """XLA op-time breakdown of one epoch of the first task at size n."""
-    import tempfile
-
-    import mjx_envs
-    from daddpg_jax.analysis import benchmark as bm
-
-    task = args.tasks[0]
-    env = mjx_envs.make(task, physics=physics, **env_over)
-    cfg = _train_config(env, task, physics, n, args, sets)
-    profile = bm.op_profile(env, cfg, tempfile.mkdtemp(prefix="daddpg_prof_"))
-    profile.update(task=task, physics=physics, num_envs=n)
-    print(f"\n[profile] {task} {physics} {n} envs: one epoch of {args.n_cycles} cycles, "
-          f"{profile['wall_s']:.2f} s wall, {profile['total_ms']:.0f} ms of XLA op time")
-    for name, ms, share, count in profile["ops"]:
-        print(f"  {name:32s} {ms:9.1f} ms {100 * share:5.1f}% {count:7d} calls")
-    return profile
 
 
 def run(argv=None) -> dict:
@@ -169,6 +92,7 @@ def run(argv=None) -> dict:
     except schema.ConfigError as e:
         p.error(str(e))
 
+    # lazy: these import JAX, and --help and argument errors stay JAX-free
     import jax
 
     from daddpg_jax.analysis import benchmark as bm
@@ -182,12 +106,20 @@ def run(argv=None) -> dict:
             train_physics = ["c"]
     env_rows, contact_rows, train_rows, profile = [], [], [], None
     if args.mode in ("env", "all"):
-        env_rows, contact_rows = env_mode(args, env_over, args.sizes or CPU_SIZES)
+        env_rows, contact_rows = bm.env_table(
+            args.tasks, args.physics, args.sizes or CPU_SIZES, env_over, steps=args.steps,
+            repeats=args.repeats, contacts=args.contacts, contact_envs=args.contact_envs,
+            log=_log)
     if args.mode in ("train", "all"):
         sizes = args.sizes or CPU_TRAIN_SIZES
-        train_rows = train_mode(args, env_over, sets, sizes, train_physics)
+        print(f"\n[train] compiled train_epoch, {args.device or current_device()} preset, "
+              f"n_cycles={args.n_cycles}" + (f", overrides {sets}" if sets else ""))
+        cfg = functools.partial(_train_config, args=args, sets=sets)
+        train_rows = bm.train_table(args.tasks, train_physics, sizes, env_over, cfg,
+                                    repeats=max(1, min(args.repeats, 2)), log=_log)
         if args.profile:
-            profile = profile_mode(args, env_over, sets, sizes[0], train_physics[0])
+            profile = bm.profile_table(args.tasks[0], train_physics[0], sizes[0], env_over, cfg,
+                                       log=_log)
     out = {"machine": machine, "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
            "time": time.strftime("%Y-%m-%d %H:%M:%S"), "load_start": load0, "load_end": bm.load(),
            "jax": jax.__version__, "devices": len(jax.devices()), "mode": args.mode,

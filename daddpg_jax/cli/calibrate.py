@@ -25,12 +25,12 @@ points; 4 the arms cannot be reached.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import numpy as np
 
 from daddpg_jax.deploy import calibrate
+from daddpg_jax.deploy.arms import ArmsError
 from daddpg_jax.deploy.limits import ARM_KEYS, LimitsError, RobotLimits
 
 
@@ -57,91 +57,21 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _per_arm(path: str, what: str) -> dict:
-    try:
-        with open(path, encoding="utf-8") as f:
-            d = json.load(f)
-    except (OSError, ValueError) as e:
-        raise calibrate.CalibrationError(f"cannot read {what} {path!r}: "
-                                         f"{getattr(e, 'strerror', None) or e}") from None
-    if not isinstance(d, dict) or set(d) != set(ARM_KEYS):
-        raise calibrate.CalibrationError(f"{what} {path!r} must hold a 'left' and a 'right' "
-                                         f"list of points")
-    try:
-        return {a: np.asarray(d[a], float) for a in ARM_KEYS}
-    except (TypeError, ValueError):
-        raise calibrate.CalibrationError(f"{what} {path!r}: every point must be a list of "
-                                         f"numbers") from None
-
-
-def sim_base_error(text: str):
-    """(offset [2, 3] m, yaw [2] rad) of --sim-base-error; CalibrationError if malformed."""
-    try:
-        v = [float(x) for x in text.split(",")]
-    except ValueError:
-        v = []
-    if len(v) != 8 or not np.all(np.isfinite(v)) or max(abs(x) for x in v) > 30:
-        raise calibrate.CalibrationError("--sim-base-error must be 8 finite numbers: dx,dy,dz "
-                                         "(m),yaw (deg) of the left then the right base")
-    a = np.asarray(v).reshape(2, 4)
-    return a[:, :3], np.radians(a[:, 3])
-
-
-def _measure_sim(points: dict, args) -> dict:
-    """Readings of the simulated controllers (true bases with --sim-base-error) with the tool
-    centre placed exactly on each point, plus Gaussian noise of --noise-mm RMS."""
-    from daddpg_jax.deploy.arms import base_transform, invert
-    from daddpg_jax.deploy.robot import ARMS
-    from daddpg_jax.deploy.ur3 import BASE_POS, BASE_YAW
-
-    offset, yaw = sim_base_error(args.sim_base_error)
-    if not (np.isfinite(args.noise_mm) and 0 <= args.noise_mm <= 10):
-        raise calibrate.CalibrationError("--noise-mm must be in [0, 10]")
-    rng = np.random.default_rng(args.seed)
-    sigma = args.noise_mm * 1e-3 / np.sqrt(3.0)
-    out = {}
-    for i, (arm, a) in enumerate(zip(ARM_KEYS, ARMS)):
-        inv = invert(base_transform(BASE_POS[a] + offset[i], BASE_YAW[a] + yaw[i]))
-        w = calibrate._points("--points", points[arm])
-        out[arm] = w @ inv[:3, :3].T + inv[:3, 3] + rng.normal(0.0, sigma, w.shape)
-    return out
-
-
-def _measure_ur(points: dict, hosts: list[str]) -> dict:
-    from daddpg_jax.deploy.arms import receive_only
-
-    receives = receive_only(hosts)
-    out = {}
-    try:
-        for i, arm in enumerate(ARM_KEYS):
-            rows = []
-            for k, w in enumerate(points[arm]):
-                input(f"{arm} arm: put the tool centre on point {k + 1} "
-                      f"({', '.join(f'{x:.4f}' for x in w)} m) and press Enter ")
-                rows.append(receives[i].getActualTCPPose())
-            out[arm] = np.asarray(rows, float)
-    finally:
-        for r in receives:
-            r.disconnect()
-    return out
-
-
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    from daddpg_jax.deploy.arms import ArmsError
-
     try:
         RobotLimits.load(args.limits)
-        points = _per_arm(args.points, "--points")
+        points = calibrate.read_points(args.points, "--points")
         if args.measured:
-            measured = _per_arm(args.measured, "--measured")
+            measured = calibrate.read_points(args.measured, "--measured")
         elif args.arms == "ur-sim":
-            measured = _measure_sim(points, args)
+            measured = calibrate.measure_sim(points, args.sim_base_error, args.noise_mm,
+                                             args.seed)
         else:
             hosts = args.ur_hosts.split(",")
             if len(hosts) != 2 or not all(hosts):
                 raise calibrate.CalibrationError("--ur-hosts must be LEFT,RIGHT")
-            measured = _measure_ur(points, hosts)
+            measured = calibrate.measure_ur(points, hosts)
         result = {}
         for arm in ARM_KEYS:
             T, res = calibrate.fit_base(points[arm], measured[arm], args.model)

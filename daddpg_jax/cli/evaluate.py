@@ -39,8 +39,9 @@ import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
 
-from daddpg_jax.analysis import engines, evaluation  # noqa: E402
-from mjx_envs.settings import PHYSICS  # noqa: E402
+from daddpg_jax.analysis import engines, evaluation, perturbation  # noqa: E402
+from mjx_envs.schema import ConfigError  # noqa: E402
+from mjx_envs.settings import PHYSICS, PHYSICS_VERSION  # noqa: E402
 
 
 def build_parser():
@@ -97,38 +98,15 @@ def build_parser():
 
 
 def _perturbation_grid(policy, args, opts: dict) -> int:
-    from daddpg_jax.analysis import perturbation
-    from mjx_envs.schema import ConfigError
-
-    try:
-        grid = perturbation.parse_grid(policy.cfg.task, args.perturb)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    n = len(perturbation.grid_points(grid))
-    done = []
-
-    def report(row):
-        done.append(row)
-        point = ", ".join(f"{k}={row[k]}" for k in grid)
-        print(f"[{len(done)}/{n}] {point}: success {row['success_rate']:.3f}", flush=True)
-
-    rows = perturbation.evaluate_grid(policy, grid, args.episodes, args.seed, report=report,
-                                      **opts)
-    meta = dict(run_dir=os.path.abspath(policy.run_dir), checkpoint=policy.step,
-                best=policy.best,
-                task=policy.cfg.task, algo=policy.cfg.algo,
-                title=f"{policy.cfg.task} / {os.path.basename(os.path.abspath(policy.run_dir))}"
-                      f" / {'best ' if policy.best else ''}checkpoint {policy.step}")
-    paths = perturbation.write_outputs(rows, grid, args.out, meta)
+    grid = perturbation.parse_grid(policy.cfg.task, args.perturb)   # ConfigError: see main
+    paths = perturbation.run_grid(policy, grid, args.episodes, args.seed, args.out,
+                                  log=lambda line: print(line, flush=True), **opts)
     print("wrote " + ", ".join(paths.values()))
     return 0
 
 
 def _check_args(args) -> tuple | str:
     """The engines to use, or a one-line error."""
-    from mjx_envs.schema import ConfigError
-
     if args.episodes < 1:
         return "--episodes must be >= 1"
     if args.chunk is not None and args.chunk < 1:
@@ -145,8 +123,6 @@ def _check_args(args) -> tuple | str:
         return str(e)
     if len(names) > 1 and (args.perturb or args.video):
         return "--perturb and --video take one engine, not a comparison"
-    from mjx_envs.settings import PHYSICS_VERSION
-
     if args.physics_version is not None and not 1 <= args.physics_version <= PHYSICS_VERSION:
         return f"--physics-version must be in [1, {PHYSICS_VERSION}], got {args.physics_version}"
     if args.divergence and len(names) < 2:
@@ -173,18 +149,8 @@ def _compare(policies: dict, args, opts: dict) -> int:
             print(f"{name}: success {s['success_rate']:.3f} ({s['eval_seconds']:.0f} s)",
                   flush=True)
 
-    summary, trajs = engines.compare(policies, args.episodes, args.seed, report=report, **opts)
-    if args.divergence:
-        a, b = summary["difference"]["engines"]
-        first = policies[a]
-        profile = engines.divergence_profile(trajs[a], trajs[b], dt=first.env.dt)
-        title = (f"{first.cfg.task} / {os.path.basename(os.path.abspath(first.run_dir))} / "
-                 f"checkpoint {first.step}: {a} vs {b}, {args.episodes} episodes")
-        summary["divergence"] = {k: os.path.abspath(v) for k, v in
-                                 engines.write_divergence(profile, args.divergence, title).items()}
-    text = engines.format_comparison(summary)
-    if args.divergence:
-        text += f"\ndivergence: {summary['divergence']['csv']}, {summary['divergence']['png']}"
+    summary, text = engines.compare_report(policies, args.episodes, args.seed,
+                                           divergence_dir=args.divergence, report=report, **opts)
     _print_result(summary, args, text)
     return 0
 
@@ -195,15 +161,13 @@ def _evaluate_one(policy, args, opts: dict) -> int:
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed, **opts)
     if args.video:
         try:
-            written = evaluation.write_video(policy, traj, args.video, args.video_episodes,
-                                             args.width, args.height)
+            note = evaluation.add_video(summary, policy, traj, args.video, args.video_episodes,
+                                        args.width, args.height)
         except evaluation.RenderUnavailable as e:
             print(f"error: {e}", file=sys.stderr)
             return 1
-        if written != args.video:
-            print(f"note: no mp4 writer (pip install imageio-ffmpeg); wrote a GIF: {written}",
-                  file=sys.stderr)
-        summary["video"] = os.path.abspath(written)
+        if note:
+            print(note, file=sys.stderr)
     _print_result(summary, args, evaluation.format_summary(summary))
     return 0
 
@@ -224,8 +188,6 @@ def main(argv=None) -> int:
         return 2
     opts = dict(chunk="auto" if args.chunk is None else args.chunk,
                 watchdog="auto" if args.watchdog is None else (args.watchdog or None))
-    from mjx_envs.schema import ConfigError
-
     try:
         if len(policies) > 1:
             return _compare(policies, args, opts)

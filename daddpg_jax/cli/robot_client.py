@@ -59,14 +59,17 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import sys
-import time
+
+from daddpg_jax.deploy import robot_session as session
+from daddpg_jax.deploy.arms import ARMS_KINDS, ArmsError, ArmsStopped, ArmsUsageError
+from daddpg_jax.deploy.client import read_token
+from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S, OutageMonitor, format_summary
+from mjx_envs.schema import ConfigError
 
 
 def _parser() -> argparse.ArgumentParser:
-    from daddpg_jax.deploy.arms import ARMS_KINDS
-    from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S
-
     p = argparse.ArgumentParser(prog="daddpg-robot-client", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--server", default="http://127.0.0.1:8000", help="policy service URL")
@@ -127,66 +130,12 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _perturbation(task: str, items: list):
-    """The Perturbation of --perturb KEY=VALUE items (exact values); raises ConfigError."""
-    from mjx_envs import perturb, schema, settings
-
-    cls = type(settings.default_config(task))
-    over = schema.parse_overrides(cls, items, "--perturb")
-    bad = sorted(set(over) - set(perturb.FIELDS))
-    if bad:
-        raise schema.ConfigError(f"--perturb: {', '.join(bad)} is not a perturbation; choose "
-                                 f"from {', '.join(perturb.FIELDS)}")
-    cfg = settings.task_config(task, **over, perturb_exact=True)   # validates the values
-    return perturb.Perturbation.from_config(cfg)
-
-
-class _ServiceError(Exception):
-    """The service cannot be used (unreachable, another task, bad settings); says why."""
-
-
-def _served(server: str, limits, task, sha256: str | None, token: str | None):
-    """(service info, the task's settings (a mjx_envs.settings config), env settings with
-    ``dt``) of the served policy, checked against the robot's limits; raises _ServiceError."""
-    from daddpg_jax.deploy.limits import LimitsError
-    from daddpg_jax.deploy.policy import check_env, env_settings, task_settings
-    from daddpg_jax.deploy.server import PolicyClient
-    from mjx_envs.settings import TASK_SETTINGS, test_overrides
-
-    client = PolicyClient(server, timeout=5.0, token=token)
-    try:
-        info = client.info()
-    except (OSError, RuntimeError, ValueError) as e:
-        raise _ServiceError(f"policy service at {server} not reachable: {e}") from None
-    finally:
-        client.close()
-    try:
-        limits.check_served(info, task=task)
-    except LimitsError as e:
-        raise _ServiceError(str(e)) from None
-    if sha256 is not None and info.get("policy_sha256") != sha256:
-        raise _ServiceError(f"the served policy's SHA-256 {info.get('policy_sha256')!r} is not "
-                            f"the pinned {sha256}")
-    served = info.get("task")
-    if served not in TASK_SETTINGS:
-        raise _ServiceError(f"the service serves a policy of an unknown task {served!r}")
-    # the standard task: the training-only task options (e.g. grasped starts) switched off
-    env = {**(info.get("env") or {}), **test_overrides(served)}
-    try:
-        check_env(env)
-        return info, task_settings(served, env), env_settings(served, env)
-    except ValueError as e:
-        raise _ServiceError(f"settings of the served {served!r} policy: {e}") from None
-
-
 def _stderr_line(line: str):
     print(line, file=sys.stderr, flush=True)
 
 
 def _finish(out: dict, args) -> int:
     """Print and save the summary; the exit code (3 when the run was aborted)."""
-    from daddpg_jax.deploy.robot import format_summary
-
     print(json.dumps(out, indent=2), flush=True)
     if args.json:
         with open(args.json, "w") as f:
@@ -205,27 +154,8 @@ def _finish(out: dict, args) -> int:
     return 0
 
 
-def _robot_limits(args):
-    """(RobotLimits after the overrides, SafetyLimits); raises LimitsError."""
-    from daddpg_jax.deploy.limits import LimitsError, RobotLimits
-
-    limits = RobotLimits.load(args.limits) if args.limits else RobotLimits()
-    deadline = None if args.deadline_ms is None else args.deadline_ms / 1e3
-    age = None if args.max_observation_age_ms is None else args.max_observation_age_ms / 1e3
-    limits = limits.tightened(max_speed=args.max_speed, min_clearance=args.min_clearance,
-                              workspace_margin=args.workspace_margin, deadline=deadline,
-                              max_observation_age=age)
-    if not args.fast and limits.deadline > limits.control_period:
-        raise LimitsError(f"the deadline {limits.deadline * 1e3:g} ms exceeds the control period "
-                          f"{limits.control_period * 1e3:g} ms; allowed only unpaced (--fast, "
-                          f"simulation)")
-    return limits, limits.safety_limits(args.speed_scale)
-
-
 def _check_args(args):
     """One-line error text for a bad argument, else None."""
-    import re
-
     if args.episodes < 1:
         return f"--episodes must be >= 1, got {args.episodes}"
     if args.arms == "ur" and (args.fast or args.perturb):
@@ -240,41 +170,18 @@ def _check_args(args):
     return None
 
 
-def _arms_env(args, task_cfg, task: str, robot_limits):
-    """The loop's env for --arms (daddpg_jax.deploy.arms.make_env); raises ArmsError."""
-    from daddpg_jax.deploy.arms import ArmsUsageError, make_env
-
-    base_error = None
-    if args.sim_base_error:
-        from daddpg_jax.cli.calibrate import sim_base_error
-        from daddpg_jax.deploy.calibrate import CalibrationError
-
-        try:
-            base_error = sim_base_error(args.sim_base_error)
-        except CalibrationError as e:
-            raise ArmsUsageError(str(e)) from None
-    hosts = args.ur_hosts.split(",") if args.ur_hosts else None
-    return make_env(args.arms, task_cfg, task, robot_limits.control_period,
-                    bases=robot_limits.base_transforms(), hosts=hosts, dry_run=args.dry_run,
-                    base_error=base_error, exact=not args.float64)
-
-
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-
-    from daddpg_jax.deploy.arms import ArmsError, ArmsStopped, ArmsUsageError
-    from daddpg_jax.deploy.client import read_token
-    from daddpg_jax.deploy.robot import OutageMonitor, Pacer, run_episodes
-    from daddpg_jax.deploy.safety import SafetyFilter
-    from daddpg_jax.deploy.server import PolicyClient
-    from mjx_envs.schema import ConfigError
-
     bad = _check_args(args)
     if bad:
         print(f"error: {bad}", file=sys.stderr)
         return 2
     try:
-        robot_limits, limits = _robot_limits(args)
+        robot_limits, limits = session.robot_limits(
+            args.limits, fast=args.fast, speed_scale=args.speed_scale,
+            deadline_ms=args.deadline_ms, max_observation_age_ms=args.max_observation_age_ms,
+            max_speed=args.max_speed, min_clearance=args.min_clearance,
+            workspace_margin=args.workspace_margin)
         token = read_token(args.token_file) if args.token_file else None
     except ValueError as e:  # LimitsError included
         print(f"error: {e}", file=sys.stderr)
@@ -282,17 +189,13 @@ def main(argv=None) -> int:
     _stderr_line(robot_limits.describe(args.speed_scale))
     sha = None if args.policy_sha256 is None else args.policy_sha256.lower()
     try:
-        info, task_cfg, _ = _served(args.server, robot_limits, args.task, sha, token)
-    except _ServiceError as e:
+        info, task_cfg, _ = session.served_policy(args.server, robot_limits, args.task, sha,
+                                                  token)
+        task = info["task"]
+        perturbation = session.perturbation(task, args.perturb) if args.perturb else None
+    except (session.ServiceError, ConfigError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    task = info["task"]
-    try:
-        perturbation = _perturbation(task, args.perturb) if args.perturb else None
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    on_log = None
     if args.log:
         try:
             os.makedirs(args.log, exist_ok=True)
@@ -300,44 +203,22 @@ def main(argv=None) -> int:
             print(f"error: cannot create --log directory {args.log!r}: {e.strerror}",
                   file=sys.stderr)
             return 2
-
-        def on_log(log):
-            path = os.path.join(args.log, f"episode_{log['episode'] + 1:05d}.json")
-            with open(path, "w") as f:
-                json.dump(log, f)
-
     try:
-        env = _arms_env(args, task_cfg, task, robot_limits)
+        env = session.arms_env(args.arms, task_cfg, task, robot_limits, hosts=args.ur_hosts,
+                               dry_run=args.dry_run, base_error=args.sim_base_error,
+                               exact=not args.float64)
     except ArmsError as e:  # ArmsUsageError: exit 2; the arms cannot be reached: 4
         print(f"error: {e}", file=sys.stderr)
         return 2 if isinstance(e, ArmsUsageError) else 4
-    client = PolicyClient(args.server, timeout=limits.deadline_s, token=token)
     monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
-    pacer = None if args.fast else Pacer(robot_limits.control_period, clock=monitor.clock)
-    t0 = time.perf_counter()
     try:
-        out = run_episodes(env, client, SafetyFilter(limits), args.episodes, seed=args.seed,
-                           monitor=monitor, perturbation=perturbation, pacer=pacer,
-                           max_observation_age=robot_limits.max_observation_age, on_log=on_log)
+        out = session.run(env, args.server, token, robot_limits, limits, args.episodes, monitor,
+                          seed=args.seed, fast=args.fast, perturbation=perturbation,
+                          log_dir=args.log, dry_run=args.dry_run, report=_stderr_line)
     except (ArmsStopped, ArmsError) as e:
         print(f"error: {e}; the run is stopped", file=sys.stderr)
         return 4
-    finally:
-        client.close()
-        if hasattr(env, "close"):
-            env.close()  # servoStop, then the connections
-    if hasattr(env, "refused"):
-        out["joint_refusals"] = env.refused
-        if env.refused:
-            _stderr_line(f"joint limits: {env.refused} arm target(s) without a joint solution "
-                         f"within the limits were refused (the arm kept its target)")
-    if args.dry_run:
-        out["dry_run_commands"] = len(env.arms.sent)
-        if args.log:
-            with open(os.path.join(args.log, "dry_run_commands.json"), "w") as f:
-                json.dump(env.arms.sent, f)
-    out.update(wall_s=round(time.perf_counter() - t0, 2), server=args.server, task=task,
-               arms=args.arms, dry_run=args.dry_run,
+    out.update(server=args.server, task=task, arms=args.arms, dry_run=args.dry_run,
                algo=info.get("algo"), policy_sha256=info.get("policy_sha256"), seed=args.seed,
                limits=robot_limits.source, speed_scale=args.speed_scale,
                deadline_ms=limits.deadline_s * 1e3, max_step_m=limits.max_step,

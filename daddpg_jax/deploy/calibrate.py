@@ -22,7 +22,9 @@ import os
 import numpy as np
 
 from daddpg_jax.deploy import robot
+from daddpg_jax.deploy.arms import base_transform, invert, receive_only
 from daddpg_jax.deploy.limits import ARM_KEYS, LimitsError, RobotLimits
+from daddpg_jax.deploy.ur3 import BASE_POS, BASE_YAW
 
 MIN_POINTS = 4
 MODELS = ("yaw", "full")
@@ -133,3 +135,73 @@ def write_calibration(path, calibration: dict) -> RobotLimits:
         raise LimitsError(f"the calibration cannot be written into {path!r}: {e}") from None
     os.replace(tmp, path)
     return limits
+
+
+# ---------------------------------------------------------------- the readings ---------------
+
+def read_points(path: str, what: str) -> dict:
+    """{"left": [n, 3+], "right": [n, 3+]} of a JSON points file (`what`: the flag that named
+    it); CalibrationError (one line) if unreadable or malformed."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except (OSError, ValueError) as e:
+        raise CalibrationError(f"cannot read {what} {path!r}: "
+                               f"{getattr(e, 'strerror', None) or e}") from None
+    if not isinstance(d, dict) or set(d) != set(ARM_KEYS):
+        raise CalibrationError(f"{what} {path!r} must hold a 'left' and a 'right' "
+                               f"list of points")
+    try:
+        return {a: np.asarray(d[a], float) for a in ARM_KEYS}
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{what} {path!r}: every point must be a list of "
+                               f"numbers") from None
+
+
+def parse_base_error(text: str):
+    """(offset [2, 3] m, yaw [2] rad) of --sim-base-error; CalibrationError if malformed."""
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 8 or not np.all(np.isfinite(v)) or max(abs(x) for x in v) > 30:
+        raise CalibrationError("--sim-base-error must be 8 finite numbers: dx,dy,dz "
+                               "(m),yaw (deg) of the left then the right base")
+    a = np.asarray(v).reshape(2, 4)
+    return a[:, :3], np.radians(a[:, 3])
+
+
+def measure_sim(points: dict, base_error: str, noise_mm: float, seed: int) -> dict:
+    """Readings of the simulated controllers (true bases with the --sim-base-error text
+    `base_error`) with the tool centre placed exactly on each point, plus Gaussian noise of
+    `noise_mm` RMS."""
+    offset, yaw = parse_base_error(base_error)
+    if not (np.isfinite(noise_mm) and 0 <= noise_mm <= 10):
+        raise CalibrationError("--noise-mm must be in [0, 10]")
+    rng = np.random.default_rng(seed)
+    sigma = noise_mm * 1e-3 / np.sqrt(3.0)
+    out = {}
+    for i, (arm, a) in enumerate(zip(ARM_KEYS, robot.ARMS)):
+        inv = invert(base_transform(BASE_POS[a] + offset[i], BASE_YAW[a] + yaw[i]))
+        w = _points("--points", points[arm])
+        out[arm] = w @ inv[:3, :3].T + inv[:3, 3] + rng.normal(0.0, sigma, w.shape)
+    return out
+
+
+def measure_ur(points: dict, hosts: list[str], prompt=input) -> dict:
+    """Readings of two UR arms (read-only RTDE): for each point, `prompt` asks the operator to
+    put the tool centre on it, then the arm's getActualTCPPose is read."""
+    receives = receive_only(hosts)
+    out = {}
+    try:
+        for i, arm in enumerate(ARM_KEYS):
+            rows = []
+            for k, w in enumerate(points[arm]):
+                prompt(f"{arm} arm: put the tool centre on point {k + 1} "
+                       f"({', '.join(f'{x:.4f}' for x in w)} m) and press Enter ")
+                rows.append(receives[i].getActualTCPPose())
+            out[arm] = np.asarray(rows, float)
+    finally:
+        for r in receives:
+            r.disconnect()
+    return out
