@@ -4,6 +4,8 @@ wall-clock second over epochs 2..N of each (epoch 1 holds the compile) and the t
 logger itself per epoch, and the ratio of env steps/s with / without it within the same runs.
 
     python experiments/tensorboard_overhead.py [EPOCHS]      # default 5 epochs per run
+
+Measured figures: docs/TOOLS.md (TensorBoard's cost).
 """
 
 import os
@@ -14,6 +16,13 @@ import time
 
 from daddpg_jax.algo.config import build_config
 from daddpg_jax.running import runner, tracking
+
+
+def steps_per_s(rows) -> float:
+    """Env steps per wall-clock second from the first to the last metrics row."""
+    a, b = rows[0], rows[-1]
+    return ((int(b["env_steps"]) - int(a["env_steps"]))
+            / (float(b["wall_time"]) - float(a["wall_time"])))
 
 
 def main(argv=None) -> int:
@@ -28,18 +37,13 @@ def main(argv=None) -> int:
             super().log_row(row)
             spent.append(time.perf_counter() - t)
 
-    def rate(rows):
-        a, b = rows[0], rows[-1]
-        return ((int(b["env_steps"]) - int(a["env_steps"]))
-                / (float(b["wall_time"]) - float(a["wall_time"])))
-
     base = tempfile.mkdtemp(prefix="tb-overhead-")
     walls = []
     for i, mode in enumerate(["none", "tb", "tb", "none"]):
         d = os.path.join(base, f"{mode}{i}")
         r = runner.train(cfg, d, loggers=[Timed(d)] if mode == "tb" else [])
         walls.append(float(r.rows[-1]["wall_time"]) / epochs)
-        print(f"{mode}: {rate(r.rows):.1f} env steps/s (epochs 2..{epochs}, wall clock)",
+        print(f"{mode}: {steps_per_s(r.rows):.1f} env steps/s (epochs 2..{epochs}, wall clock)",
               flush=True)
     per_epoch, epoch_s = st.mean(spent), st.mean(walls)
     print(f"TensorBoard logging per epoch: mean {1e3 * per_epoch:.2f} ms, max "

@@ -75,7 +75,8 @@ def build_parser():
                    help="ours: cycles between evaluations (default: the preset's, 20 on reach)")
     p.add_argument("--torch-threads", type=int, default=1,
                    help="torch intra-op threads for SB3 (default 1: on a busy 2-core machine two "
-                        "OpenMP threads made a 256x256 matmul ~60x slower than one)")
+                        "OpenMP threads made a 256x256 matmul much slower than one; "
+                        "docs/BENCHMARKS.md)")
     p.add_argument("--out", default="runs/compare_sb3", help="output directory")
     p.add_argument("--worker", choices=METHODS, default=None, help=argparse.SUPPRESS)
     return p

@@ -17,8 +17,12 @@ metadata (inputs observation [batch, 2, obs] and desired_goal [batch, 2, goal], 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
+
+from daddpg_jax.deploy import PolicyFormatError
+from daddpg_jax.deploy.onnx_policy import load_policy
 
 
 def main(argv=None) -> int:
@@ -41,11 +45,10 @@ def main(argv=None) -> int:
         p.error(f"--format {args.format} needs an --out name ending in .{args.format}, got "
                 f"{args.out!r}")
     if fmt == "onnx":
-        import importlib.util
-
         if any(importlib.util.find_spec(m) is None for m in ("onnx", "onnxruntime")):
             p.error("--format onnx needs onnx and onnxruntime: pip install 'daddpg-jax[onnx]'")
 
+    # lazy: imports JAX (to restore the checkpoint), and argument errors stay JAX-free
     from daddpg_jax.running.export import ExportError, export_run
 
     try:
@@ -53,9 +56,6 @@ def main(argv=None) -> int:
     except ExportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    from daddpg_jax.deploy import PolicyFormatError
-    from daddpg_jax.deploy.onnx_policy import load_policy
-
     try:
         pol = load_policy(path)   # read back through the loader's validation
     except PolicyFormatError as e:

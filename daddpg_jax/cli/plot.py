@@ -34,14 +34,30 @@ import csv
 import os
 import sys
 
+from daddpg_jax.analysis.plotting import (
+    group_summary,
+    plot_runs,
+    read_metrics,
+    repeated_seeds,
+    run_config,
+    run_label,
+    summary_columns,
+    truncate,
+)
 
-def _table_row(run: str, label: str, rows: list, cfg: dict) -> dict:
-    from daddpg_jax.analysis.reproduce import Experiment, final_row
 
-    exp = Experiment(label, str(cfg.get("algo", "?")), str(cfg.get("her", "?")))
-    row = final_row(str(cfg.get("task", "?")), exp, int(cfg.get("seed", 0)), rows)
-    row["run"] = run
-    return row
+def _write_table(path: str, table: list) -> None:
+    """One row per run (run, label, metrics rows, config): final.csv's columns + run."""
+    # lazy: analysis.reproduce imports JAX (the runner); only --table needs it
+    from daddpg_jax.analysis.reproduce import FINAL_COLUMNS, Experiment, final_row
+
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=(*FINAL_COLUMNS, "run"))
+        w.writeheader()
+        for run, label, rows, cfg in table:
+            exp = Experiment(label, str(cfg.get("algo", "?")), str(cfg.get("her", "?")))
+            row = final_row(str(cfg.get("task", "?")), exp, int(cfg.get("seed", 0)), rows)
+            w.writerow(dict(row, run=run))
 
 
 def main(argv=None) -> int:
@@ -74,17 +90,6 @@ def main(argv=None) -> int:
         if v is not None and not v > 0:
             p.error(f"--{name.replace('_', '-')} must be > 0, got {v}")
 
-    from daddpg_jax.analysis.plotting import (
-        group_summary,
-        plot_runs,
-        read_metrics,
-        repeated_seeds,
-        run_config,
-        run_label,
-        summary_columns,
-        truncate,
-    )
-
     groups: dict = {}
     paths: dict = {}
     table = []
@@ -113,12 +118,7 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     out = plot_runs(groups, args.out, title=args.title, band=args.band)
     if args.table:
-        from daddpg_jax.analysis.reproduce import FINAL_COLUMNS
-
-        with open(args.table, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=(*FINAL_COLUMNS, "run"))
-            w.writeheader()
-            w.writerows(_table_row(*t) for t in table)
+        _write_table(args.table, table)
         print(f"wrote {os.path.abspath(args.table)}")
     if args.summary:
         rows_out = group_summary(groups)

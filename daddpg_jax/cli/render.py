@@ -21,7 +21,7 @@ def main(argv=None) -> int:
     p.add_argument("--width", type=int, default=960, help="image width, pixels")
     p.add_argument("--height", type=int, default=720, help="image height, pixels")
     args = p.parse_args(argv)
-
+    # lazy: JAX and the renderer load only for a render, not for --help or argument errors
     import imageio.v3 as iio
     import jax
 

@@ -21,6 +21,8 @@ import argparse
 import os
 import sys
 
+from daddpg_jax.algo.config import TrainConfig
+from mjx_envs import schema, settings
 from mjx_envs.settings import TASKS
 
 
@@ -53,17 +55,15 @@ def main(argv=None) -> int:
         p.error("--seeds must be >= 1")
     if args.first_seed < 0:
         p.error("--first-seed must be >= 0")
-
-    from daddpg_jax.algo.config import TrainConfig
-    from daddpg_jax.analysis.reproduce import run_set
-    from mjx_envs import schema, settings
-
     try:
         overrides = schema.parse_overrides(TrainConfig, args.set, "--set")
         env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
                                           "--env")
     except schema.ConfigError as e:
         p.error(str(e))
+    # lazy: imports JAX, and --help and argument errors stay JAX-free
+    from daddpg_jax.analysis.reproduce import run_set
+
     summary = run_set(args.task, args.out, seeds=args.seeds, algos=args.algo,
                       ablations=args.ablations, env_steps=args.env_steps,
                       budget_minutes=args.budget_minutes, num_envs=args.num_envs,

@@ -16,10 +16,13 @@ parses flags, rolls them out with the C engine (or MJX with --physics mjx) and r
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
+
+from mjx_envs import schema, settings  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -48,72 +51,49 @@ def main(argv=None) -> int:
 
     if args.episodes < 1:
         p.error("--episodes must be >= 1")
-
-
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
-
-    import mjx_envs
-    from daddpg_jax.algo import acting
-    from mjx_envs import schema, settings
-    from mjx_envs.tasks import scripted
-
     try:
         env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
                                           "--env")
     except schema.ConfigError as e:
         p.error(str(e))
+    # lazy: JAX and the engines load only for a rollout, not for --help or argument errors
+    import mjx_envs
+    from daddpg_jax.analysis import scripted_rollout
+
     env = mjx_envs.make(args.task, physics=args.physics, **env_over)
-    if args.policy == "zero":
-        def policy(obs, max_delta):
-            return jnp.zeros(obs["observation"].shape[:-2] + (env.action_size,), jnp.float32)
-    else:
-        policy = scripted.get_policy(args.task)
-
-    def record(s, a, s2):
-        return (env.backend.qpos(s2.data), env.backend.mocap_pos(s2.data),
-                s2.metrics["success"], s2.obs["desired_goal"], s2.obs["achieved_goal"])
-
-    @jax.jit
-    def rollout(keys):
-        return acting.rollout(env, lambda s, _: policy(s.obs, env.config.max_delta), keys,
-                              record=record)[1]
-
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
-    qpos, mocap, success, goal, achieved = jax.tree.map(np.asarray, rollout(keys))
-    final = success[-1]
-    dist = np.linalg.norm(achieved[-1] - goal[-1], axis=-1).mean(axis=0)  # [arms]
+    traj = scripted_rollout.rollout(env, args.policy, args.episodes, args.seed)
+    final = traj["success"][-1]
+    dist = scripted_rollout.final_distance(traj)  # [arms]
     for i, ok in enumerate(final):
         print(f"episode {i}: {'success' if ok else 'failure'}")
     what = "the scripted controller" if args.policy == "scripted" else "zero actions"
     print(f"{args.task}: success {final.mean():.2f} ({int(final.sum())}/{len(final)}) "
           f"with {what} on physics={env.physics}")
     print(f"final goal distance, m: left {dist[0]:.4f} right {dist[-1]:.4f} (mean over episodes)")
+    return _video(env, traj, args) if args.video else 0
 
-    if args.video:
-        try:
-            import imageio.v2 as imageio  # noqa: F401  (optional extra: checked before rendering)
-        except ImportError:
-            print("--video needs imageio (pip install imageio imageio-ffmpeg); no video written",
-                  file=sys.stderr)
-            return 1
-        from daddpg_jax.analysis.evaluation import write_frames
-        from mjx_envs.render import Renderer
 
-        try:
-            r = Renderer(env, width=args.width, height=args.height)
-        except Exception as e:  # no EGL / GL context
-            print(f"rendering failed ({e}); set MUJOCO_GL=egl and install libegl1 libegl-mesa0 "
-                  "libgl1-mesa-dri", file=sys.stderr)
-            return 1
-        frames = [r.frame(qpos[t, 0], goal[t, 0], mocap[t, 0]) for t in range(len(qpos))]
-        r.close()
-        written = write_frames(args.video, frames, int(round(1.0 / env.dt)))
-        if written != args.video:
-            print(f"could not write {args.video} (install imageio-ffmpeg for mp4); wrote "
-                  f"{written} instead", file=sys.stderr)
-        print(f"wrote {written} ({len(frames)} frames)")
+def _video(env, traj: dict, args) -> int:
+    """Episode 0 as a video (--video); the exit code."""
+    if importlib.util.find_spec("imageio") is None:   # an optional extra: checked first
+        print("--video needs imageio (pip install imageio imageio-ffmpeg); no video written",
+              file=sys.stderr)
+        return 1
+    from daddpg_jax.analysis import scripted_rollout  # lazy: imports JAX (see main)
+    from mjx_envs.render import Renderer
+
+    try:
+        r = Renderer(env, width=args.width, height=args.height)
+    except Exception as e:  # no EGL / GL context
+        print(f"rendering failed ({e}); set MUJOCO_GL=egl and install libegl1 libegl-mesa0 "
+              "libgl1-mesa-dri", file=sys.stderr)
+        return 1
+    written, n = scripted_rollout.write_video(r, traj, args.video, int(round(1.0 / env.dt)))
+    r.close()
+    if written != args.video:
+        print(f"could not write {args.video} (install imageio-ffmpeg for mp4); wrote "
+              f"{written} instead", file=sys.stderr)
+    print(f"wrote {written} ({n} frames)")
     return 0
 
 

@@ -20,17 +20,22 @@ from __future__ import annotations
 import argparse
 import sys
 
+from daddpg_jax.deploy import PolicyFormatError
+from daddpg_jax.deploy.client import read_token
+from daddpg_jax.deploy.onnx_policy import load_policy  # .npz or .onnx, by extension
+from daddpg_jax.deploy.server import (
+    IDLE_TIMEOUT_S,
+    MAX_BODY,
+    MAX_CONNECTIONS,
+    REQUEST_TIMEOUT_S,
+    PolicyServer,
+    ServiceLimits,
+)
+
 SWITCH_INTERVAL_S = 0.0005
 
 
 def main(argv=None) -> int:
-    from daddpg_jax.deploy.server import (  # NumPy + stdlib; --help shows the defaults
-        IDLE_TIMEOUT_S,
-        MAX_BODY,
-        MAX_CONNECTIONS,
-        REQUEST_TIMEOUT_S,
-    )
-
     p = argparse.ArgumentParser(prog="daddpg-serve", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("policy", help="exported policy, .npz or .onnx (daddpg-export; .onnx runs in "
@@ -53,11 +58,6 @@ def main(argv=None) -> int:
                         "401. Not encryption: see docs/DEPLOYMENT.md")
     p.add_argument("--verbose", action="store_true", help="log every request to stderr")
     args = p.parse_args(argv)
-
-    from daddpg_jax.deploy import PolicyFormatError
-    from daddpg_jax.deploy.client import read_token
-    from daddpg_jax.deploy.server import PolicyServer, ServiceLimits
-
     try:
         limits = ServiceLimits(max_body=args.max_body, request_timeout=args.request_timeout,
                                idle_timeout=args.idle_timeout,
@@ -66,8 +66,6 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    from daddpg_jax.deploy.onnx_policy import load_policy  # .npz or .onnx, by extension
-
     try:
         policy = load_policy(args.policy)
     except (FileNotFoundError, PolicyFormatError) as e:
