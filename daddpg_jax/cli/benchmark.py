@@ -95,9 +95,9 @@ def run(argv=None) -> dict:
     # lazy: these import JAX, and --help and argument errors stay JAX-free
     import jax
 
-    from daddpg_jax.analysis import benchmark as bm
+    from daddpg_jax.analysis import benchmark
 
-    machine, load0 = bm.machine_description(), bm.load()
+    machine, load0 = benchmark.machine_description(), benchmark.load()
     print(f"machine: {machine}; load average (1 min) {load0:.2f}")
     train_physics = args.train_physics
     if train_physics is None:
@@ -106,7 +106,7 @@ def run(argv=None) -> dict:
             train_physics = ["c"]
     env_rows, contact_rows, train_rows, profile = [], [], [], None
     if args.mode in ("env", "all"):
-        env_rows, contact_rows = bm.env_table(
+        env_rows, contact_rows = benchmark.env_table(
             args.tasks, args.physics, args.sizes or CPU_SIZES, env_over, steps=args.steps,
             repeats=args.repeats, contacts=args.contacts, contact_envs=args.contact_envs,
             log=_log)
@@ -114,14 +114,15 @@ def run(argv=None) -> dict:
         sizes = args.sizes or CPU_TRAIN_SIZES
         print(f"\n[train] compiled train_epoch, {args.device or current_device()} preset, "
               f"n_cycles={args.n_cycles}" + (f", overrides {sets}" if sets else ""))
-        cfg = functools.partial(_train_config, args=args, sets=sets)
-        train_rows = bm.train_table(args.tasks, train_physics, sizes, env_over, cfg,
-                                    repeats=max(1, min(args.repeats, 2)), log=_log)
+        make_cfg = functools.partial(_train_config, args=args, sets=sets)
+        train_rows = benchmark.train_table(args.tasks, train_physics, sizes, env_over, make_cfg,
+                                           repeats=max(1, min(args.repeats, 2)), log=_log)
         if args.profile:
-            profile = bm.profile_table(args.tasks[0], train_physics[0], sizes[0], env_over, cfg,
-                                       log=_log)
+            profile = benchmark.profile_table(args.tasks[0], train_physics[0], sizes[0],
+                                              env_over, make_cfg, log=_log)
     out = {"machine": machine, "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
-           "time": time.strftime("%Y-%m-%d %H:%M:%S"), "load_start": load0, "load_end": bm.load(),
+           "time": time.strftime("%Y-%m-%d %H:%M:%S"), "load_start": load0,
+           "load_end": benchmark.load(),
            "jax": jax.__version__, "devices": len(jax.devices()), "mode": args.mode,
            "results": env_rows, "contacts": contact_rows, "train": train_rows,
            "profile": profile,

@@ -97,14 +97,6 @@ def build_parser():
     return p
 
 
-def _perturbation_grid(policy, args, opts: dict) -> int:
-    grid = perturbation.parse_grid(policy.cfg.task, args.perturb)   # ConfigError: see main
-    paths = perturbation.run_grid(policy, grid, args.episodes, args.seed, args.out,
-                                  log=lambda line: print(line, flush=True), **opts)
-    print("wrote " + ", ".join(paths.values()))
-    return 0
-
-
 def _check_args(args) -> tuple | str:
     """The engines to use, or a one-line error."""
     if args.episodes < 1:
@@ -156,8 +148,12 @@ def _compare(policies: dict, args, opts: dict) -> int:
 
 
 def _evaluate_one(policy, args, opts: dict) -> int:
-    if args.perturb:
-        return _perturbation_grid(policy, args, opts)
+    if args.perturb:   # a bad grid is a ConfigError: one line, exit 2 (main)
+        grid = perturbation.parse_grid(policy.cfg.task, args.perturb)
+        paths = perturbation.run_grid(policy, grid, args.episodes, args.seed, args.out,
+                                      log=lambda line: print(line, flush=True), **opts)
+        print("wrote " + ", ".join(paths.values()))
+        return 0
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed, **opts)
     if args.video:
         try:
