@@ -112,7 +112,7 @@ class DualUR3GoalEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
-    def __init__(self, task: str = "reach", render_mode: str | None = None,
+    def __init__(self, task: str = settings.DEFAULT_TASK, render_mode: str | None = None,
                  width: int = 480, height: int = 360, reward_type: str = "sparse",
                  **overrides):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

@@ -43,7 +43,7 @@ import sys
 import time
 
 from daddpg_jax.analysis.levels import reaches  # success-level test, float32 tolerance
-from mjx_envs.settings import TASKS
+from mjx_envs.settings import DEFAULT_TASK, TASKS
 
 METHODS = ("single", "daddpg", "sb3", "single_mt", "daddpg_mt")
 DEFAULT_METHODS = ("single", "daddpg", "sb3")
@@ -290,7 +290,7 @@ def table(summaries: list, target: float) -> str:
 def build_parser():
     p = argparse.ArgumentParser(prog="compare_sb3.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="reach", choices=TASKS)
+    p.add_argument("--task", default=DEFAULT_TASK, choices=TASKS)
     p.add_argument("--time-budget", type=float, default=600.0, metavar="SECONDS",
                    help="training wall clock cap per method (default 600)")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),

@@ -41,11 +41,11 @@ from daddpg_jax.algo.config import (
     robust_env,
 )
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 from mjx_envs.schema import ConfigError
 
 # flags that are also TrainConfig fields: flag attribute -> field
-_FIELD_FLAGS = ("algo", "her", "physics", "seed")
+_FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
 
 
 def help_epilog(device: str) -> str:
@@ -91,6 +91,9 @@ def build_parser(device: str | None = None):
     p.add_argument("--task", choices=settings.TASKS, default=None,
                    help="task to train (default reach; taken from config.json with --resume "
                         "or --config)")
+    p.add_argument("--task-module", default=None, metavar="MODULE",
+                   help="module that registers a task defined outside this package (recorded "
+                        "in config.json as task_module; docs/TASKS.md, 'Adding a task')")
     p.add_argument("--num-envs", type=int, default=None,
                    help="parallel environments; the task preset scales batch size and updates "
                         "per cycle with it (default: the preset's: 2 on a CPU, 4096 on an "
@@ -272,7 +275,7 @@ def resolve(args, parser, check_out: bool = True):
                                        device=args.device))
         run_dir = None
     else:
-        task = args.task or "reach"
+        task = args.task or settings.DEFAULT_TASK
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
         run_dir = None
     if args.robust:   # a resume refused --robust above
@@ -448,8 +451,20 @@ def _epoch_line(row) -> str:
             f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
 
 
+def import_task_module(argv) -> None:
+    """Imports --task-module before the parser is built, so that --task lists its task."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--task-module", default=None)
+    try:
+        registry.import_task_module(pre.parse_known_args(argv)[0].task_module)
+    except ValueError as e:
+        print(f"daddpg-train: error: --task-module: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 def main(argv=None):
     layout = join_job(argv)
+    import_task_module(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.stop_at_success is not None and not 0.0 <= args.stop_at_success <= 1.0:
