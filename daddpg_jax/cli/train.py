@@ -193,7 +193,7 @@ def join_job(argv=None):
     anything else uses JAX); returns its Layout or None. Exits 2 with one line on failure."""
     from daddpg_jax.running import distributed
 
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     _add_distributed_flags(pre)
     args, _ = pre.parse_known_args(argv)
     try:
@@ -453,7 +453,7 @@ def _epoch_line(row) -> str:
 
 def import_task_module(argv) -> None:
     """Imports --task-module before the parser is built, so that --task lists its task."""
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     pre.add_argument("--task-module", default=None)
     try:
         registry.import_task_module(pre.parse_known_args(argv)[0].task_module)
