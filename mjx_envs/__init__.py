@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 from mjx_envs import registry
 from mjx_envs.registry import Task  # noqa: F401  (public: the record `register` takes)
-from mjx_envs.settings import PHYSICS, default_config  # noqa: F401  (JAX-free)
+from mjx_envs.settings import PHYSICS, default_config, replace_config  # noqa: F401  (JAX-free)
 
 if TYPE_CHECKING:
     from mjx_envs.core import DualArmEnv
@@ -33,7 +33,6 @@ _LAZY = {
     "DualArmEnv": ("mjx_envs.core", "DualArmEnv"),
     "State": ("mjx_envs.core", "State"),
     "TaskConfig": ("mjx_envs.settings", "TaskConfig"),
-    "replace_config": ("mjx_envs.settings", "replace_config"),
 }
 
 MAX_EPISODE_STEPS = 50
@@ -116,8 +115,6 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
     registry.get(task)   # ValueError naming the registered tasks
     if physics not in PHYSICS:
         raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
-    from mjx_envs.settings import replace_config
-
     cls = registry.env_class(task)
     cfg = replace_config(cls.default_config(), **overrides)
     return cls(cfg, physics=physics)

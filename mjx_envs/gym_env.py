@@ -221,6 +221,7 @@ class DualUR3GoalEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
+            # lazy: mjx_envs.render sets MUJOCO_GL, which only a rendering env should do
             from mjx_envs.render import make_camera
 
             w, h = self._render_size

@@ -159,3 +159,18 @@ def env_class(name: str) -> type:
 def scripted_task_names() -> tuple[str, ...]:
     """The registered tasks that have a scripted controller."""
     return tuple(t.name for t in tasks() if t.scripted is not None)
+
+
+def task_table() -> str:
+    """The registered tasks as a Markdown table (docs/TASKS.md, "Tasks", is this table)."""
+    rows = ["| task | module | scene | object | scripted controller | Gymnasium ids | CPU "
+            "preset | env preset |", "|---|---|---|---|---|---|---|---|"]
+    for t in tasks():
+        def fmt(d):
+            return ", ".join(f"{k}={v}" for k, v in d.items()) or "-"
+        ids = " / ".join(i for i in (t.gym_id, t.dense_gym_id) if i) or "-"
+        rows.append(f"| {t.name} | `{t.module}` | {t.config.scene} | "
+                    f"{t.object[1] if t.object else '-'} | "
+                    f"{'yes' if t.scripted is not None else '-'} | {ids} | {fmt(t.cpu_preset)} "
+                    f"| {fmt(t.env_preset)} |")
+    return "\n".join(rows)

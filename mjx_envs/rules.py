@@ -65,7 +65,7 @@ class JaxSampler:
     """``jax.random`` draws (float32); JAX is imported when the sampler is made."""
 
     def __init__(self):
-        import jax
+        import jax  # lazy: this module is JAX-free until a JAX sampler is made
         import jax.numpy as jnp
 
         self._random, self._dtype = jax.random, jnp.float32

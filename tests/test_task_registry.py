@@ -169,3 +169,10 @@ def test_added_task_trains_evaluates_and_exports(tmp_path):
     assert a.shape == (8,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1.0)
     np.testing.assert_array_equal(a, pol.act(step.observation, step.desired_goal))
     assert "slide" not in registry.task_names()
+
+
+def test_docs_task_table_is_the_registry():
+    """~0.1 s. docs/TASKS.md's task table is `registry.task_table()`."""
+    text = open(os.path.join(ROOT, "docs", "TASKS.md")).read()
+    table = text.split("<!-- task table: begin -->\n")[1].split("\n<!-- task table: end -->")[0]
+    assert table == registry.task_table()

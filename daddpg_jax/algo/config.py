@@ -9,7 +9,9 @@ schema. Standard library only at import (the NumPy-only robot side imports this 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
+import os
 
 from daddpg_jax.algo.variants import ALGOS
 from daddpg_jax.algo.variants import get as get_variant
@@ -162,8 +164,8 @@ class TrainConfig:
         low=0)
     n_demos: int = spec(
         0,
-        "scripted demonstration episodes (the task's controller in "
-        "mjx_envs/tasks/scripted.py) rolled out once at init and kept in a fixed demo buffer "
+        "scripted demonstration episodes (the task's controller, `scripted_policy` in "
+        "mjx_envs/tasks/<task>.py) rolled out once at init and kept in a fixed demo buffer "
         "beside the replay (0 = none: the paper's setting). Not part of the paper: with "
         "n_demos > 0 every update adds `demo_batch` HER-relabelled demo transitions to the "
         "batch of critics and actors and a behaviour-cloning term on them (demonstrations as "
@@ -275,7 +277,7 @@ def preset_env(task: str, robust: bool = False) -> dict:
 
 def current_device() -> str:
     """The platform JAX runs on ('cpu', 'gpu' or 'tpu'; imports JAX)."""
-    import jax
+    import jax  # lazy: this module is read without JAX (the robot side, --help)
 
     backend = jax.default_backend()
     return backend if backend in DEVICES else "gpu"
@@ -291,9 +293,6 @@ def guess_device() -> str:
     """The platform JAX would run on, guessed without importing JAX (for --help and argument
     errors, which stay fast): the first entry of JAX_PLATFORMS if set, 'gpu' / 'tpu' when one
     of JAX's accelerator plugins is installed, else 'cpu'. A run asks JAX (`current_device`)."""
-    import importlib.util
-    import os
-
     first = os.environ.get("JAX_PLATFORMS", "").split(",")[0].strip().lower()
     if first:
         return first if first in DEVICES else "gpu"
