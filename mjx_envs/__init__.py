@@ -55,7 +55,7 @@ def __getattr__(name: str):
         return {t.name: t.gym_id for t in registry.tasks() if t.gym_id}
     if name == "DENSE_ENV_IDS":
         return {t.name: t.dense_gym_id for t in registry.tasks() if t.dense_gym_id}
-    by_class = {n.capitalize(): n for n in registry.task_names()}
+    by_class = {registry.class_name(n): n for n in registry.task_names()}
     if name in by_class:
         return registry.env_class(by_class[name])
     raise AttributeError(f"module 'mjx_envs' has no attribute {name!r}")

@@ -141,6 +141,11 @@ def make_rules(name: str, config, model):
     return task.rules(config, model, task.object)
 
 
+def class_name(name: str) -> str:
+    """The env class name of task `name`: 'pick_up' -> 'PickUp'."""
+    return "".join(p.capitalize() for p in name.split("_"))
+
+
 def env_class(name: str) -> type:
     """The JAX env class of task `name` (imports JAX): `mjx_envs.core.DualArmEnv`, or the
     object-task base when the task has an object, with ``task_name`` set."""
@@ -150,8 +155,7 @@ def env_class(name: str) -> type:
             from mjx_envs.core import DualArmEnv as base  # lazy: the registry is JAX-free
         else:
             from mjx_envs.tasks.object_task import ObjectPoseTask as base  # lazy: as above
-        cls_name = "".join(p.capitalize() for p in name.split("_"))
-        _ENV_CLASSES[name] = type(cls_name, (base,), {"task_name": name,
+        _ENV_CLASSES[name] = type(class_name(name), (base,), {"task_name": name,
                                                        "__module__": task.module or __name__})
     return _ENV_CLASSES[name]
 
