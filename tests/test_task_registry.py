@@ -129,7 +129,7 @@ print(json.dumps(dict(
 
 @pytest.mark.e2e
 def test_added_task_trains_evaluates_and_exports(tmp_path):
-    """~1.5-3 min on the 2-core CPU (three fresh interpreters: a one-epoch training of 2 envs
+    """~3 min on the loaded 2-core CPU (three fresh interpreters: a one-epoch training of 2 envs
     on the C engine, 2 cycles of 2 updates, 4 test episodes; evaluation; export). The task is
     named on the command line by its module alone; evaluation and export in fresh processes
     are given only the run directory and find the task through config.json's task_module.
