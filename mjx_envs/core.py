@@ -2,7 +2,7 @@
 
 Pure functional API for ONE env (batch with ``jax.vmap``)::
 
-    env = mjx_envs.make("reach", physics="c")
+    env = mjx_envs.make("push", physics="c")
     state = env.reset(key)
     state = env.step(state, action)          # action: [8] = per arm [dx, dy, dz, finger]
 
@@ -23,7 +23,7 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, randomize, rules, settings
+from mjx_envs import perturb, randomize, registry, rules, settings
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
@@ -81,7 +81,7 @@ class DualArmEnv:
         self._home_qpos, self._home_mocap = home_state(self.mj_model)
         self._ws_low = np.asarray(cfg.workspace_low, np.float32)
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
-        self.rules = rules.TaskRules(cfg, self.mj_model, settings.OBJECTS.get(self.task_name))
+        self.rules = registry.make_rules(self.task_name, cfg, self.mj_model)
         # static: with every randomization field 0 the env has no randomization code nor carry
         self.randomization = randomize.Randomization.from_config(cfg)
         self._rand_index = None

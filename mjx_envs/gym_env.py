@@ -112,7 +112,7 @@ class DualUR3GoalEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
-    def __init__(self, task: str = "reach", render_mode: str | None = None,
+    def __init__(self, task: str = settings.DEFAULT_TASK, render_mode: str | None = None,
                  width: int = 480, height: int = 360, reward_type: str = "sparse",
                  **overrides):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -221,6 +221,7 @@ class DualUR3GoalEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
+            # lazy: mjx_envs.render sets MUJOCO_GL, which only a rendering env should do
             from mjx_envs.render import make_camera
 
             w, h = self._render_size

@@ -46,7 +46,7 @@ import mujoco
 import numpy as np
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, rules
+from mjx_envs import perturb, registry, rules
 from mjx_envs import settings as settings_lib
 from mjx_envs.model import home_state, load_model
 
@@ -74,7 +74,7 @@ class NumpyDualArmEnv:
     """One env of any task, stepped with MuJoCo's C engine from NumPy; see the module doc."""
 
     def __init__(self, settings: Mapping[str, Any] | settings_lib.TaskConfig | None = None,
-                 task: str = "reach", exact: bool = True):
+                 task: str = settings_lib.DEFAULT_TASK, exact: bool = True):
         cfg = settings_lib.saved_config(task, settings)
         if getattr(cfg, "grasp_start_fraction", 0.0) > 0:
             warnings.warn(f"NumpyDualArmEnv does not start episodes from grasped states: "
@@ -100,7 +100,7 @@ class NumpyDualArmEnv:
         self.exact = bool(exact)
         self.model = load_model(cfg.scene, cfg.timestep, cfg.cone, cfg.physics_version)
         self.data = mujoco.MjData(self.model)
-        self.rules = rules.TaskRules(cfg, self.model, settings_lib.OBJECTS.get(task))
+        self.rules = registry.make_rules(task, cfg, self.model)
         self.n_substeps = int(cfg.n_substeps)
         self.dt = float(cfg.timestep) * self.n_substeps
         self.episode_length = int(cfg.episode_length)

@@ -15,8 +15,9 @@ Random numbers come from an injected sampler with two methods, ``split(key, num)
 
 Given the same draws, both namespaces compute the same values (to float32 rounding).
 
-Per episode (`TaskRules.reset`): the key is split into (goal, initial state) keys.
-- reach: goal ~ U(goal_low, goal_high) [2, 3]; the home keyframe as initial state.
+Per episode (`TaskRules.reset`): the key is split into (goal, initial state) keys. Each task's
+own hooks are a `TaskRules` subclass in its module (`mjx_envs/tasks/<task>.py`); the object
+tasks share `ObjectRules`:
 - object tasks: initial object pose (x, y, yaw) ~ U(init_low, init_high) on the table (resting
   height of the home keyframe); ONE goal pose (x, y, h, yaw) ~ U(target_low, target_high),
   shifted horizontally by r ~ U(target_radius) in a direction phi ~ U(0, 2 pi), at height
@@ -64,7 +65,7 @@ class JaxSampler:
     """``jax.random`` draws (float32); JAX is imported when the sampler is made."""
 
     def __init__(self):
-        import jax
+        import jax  # lazy: this module is JAX-free until a JAX sampler is made
         import jax.numpy as jnp
 
         self._random, self._dtype = jax.random, jnp.float32
@@ -105,14 +106,9 @@ def placed_qpos(xp, home_qpos, qpos_adr: int, rest_z: float, pose):
     return xp.concatenate([home[:qpos_adr], obj, home[qpos_adr + 7:]])
 
 
-def _bounds(xp, low, high):
+def bounds(xp, low, high):
+    """(low, high) as float32 arrays of namespace ``xp``."""
     return xp.asarray(np.asarray(low, np.float32)), xp.asarray(np.asarray(high, np.float32))
-
-
-def reach_goal(xp, sampler, key, goal_low, goal_high):
-    """Reach goal [2, 3]: each arm's target uniform in its goal box."""
-    lo, hi = _bounds(xp, goal_low, goal_high)
-    return sampler.uniform(key, (NUM_ARMS, 3), lo, hi)
 
 
 def object_goal(xp, sampler, key, cfg, rest_z: float, offsets):
@@ -122,7 +118,7 @@ def object_goal(xp, sampler, key, cfg, rest_z: float, offsets):
         k_pose, k_r, k_phi, k_rest = sampler.split(key, 4)
     else:
         k_pose, k_r, k_phi = sampler.split(key, 3)
-    lo, hi = _bounds(xp, cfg.target_low, cfg.target_high)
+    lo, hi = bounds(xp, cfg.target_low, cfg.target_high)
     pose = sampler.uniform(k_pose, lo.shape, lo, hi)
     x, y, h, yaw = pose[0], pose[1], pose[2], pose[3]
     r_lo, r_hi = cfg.target_radius
@@ -137,7 +133,7 @@ def object_goal(xp, sampler, key, cfg, rest_z: float, offsets):
 
 def object_init_qpos(xp, sampler, key, cfg, home_qpos, qpos_adr: int, rest_z: float):
     """Initial qpos: the home keyframe with the object at a pose ~ U(init_low, init_high)."""
-    lo, hi = _bounds(xp, cfg.init_low, cfg.init_high)
+    lo, hi = bounds(xp, cfg.init_low, cfg.init_high)
     pose = sampler.uniform(key, lo.shape, lo, hi)
     return placed_qpos(xp, home_qpos, qpos_adr, rest_z, pose)
 
@@ -188,52 +184,29 @@ def contact_terms(xp, clearance, arm_clearance: float, arm_contact_penalty: floa
 # -- a task's rules, bound to its settings and scene ---------------------------------------------
 
 class TaskRules:
-    """The rules of one task, bound to its settings (`mjx_envs.settings`) and compiled scene.
+    """The rule hooks of one task, bound to its settings and compiled scene: the shared base.
 
-    ``objects``: (free joint, body, (left point site, right point site)) of the task's object
-    (`mjx_envs.settings.OBJECTS`), None for reach. ``model``: a ``mujoco.MjModel`` (read here
-    for the home keyframe, the object's qpos address, resting height and point offsets).
+    A task's module (`mjx_envs.registry.Task.rules`) subclasses it and defines ``goal`` and
+    ``achieved_goal`` (and ``init_qpos`` when the start is not the home keyframe); success and
+    reward come from the goal distance here unless the task overrides them. Built as
+    ``rules(config, model, object)``: ``model`` a ``mujoco.MjModel`` (read for the home
+    keyframe), ``object`` the task's (free joint, body, point sites) or None.
     """
+
+    has_object = False
 
     def __init__(self, config, model, objects=None):
         self.config = config
-        key = model.key("home")
-        self.home_qpos = np.asarray(key.qpos, np.float32)
-        self.has_object = objects is not None
-        if self.has_object:
-            self._bind_object(model, *objects)
-
-    def _bind_object(self, model, joint: str, body: str, sites) -> None:
-        names = [model.joint(i).name for i in range(model.njnt)]
-        if joint not in names:
-            raise ValueError(f"the scene {self.config.scene!r} has no object joint {joint!r} "
-                             f"(joints: {names}); is it the task's scene?")
-        self.object_joint, self.object_body, self.point_sites = joint, body, tuple(sites)
-        self.qpos_adr = int(model.jnt_qposadr[model.joint(joint).id])
-        self.rest_z = float(self.home_qpos[self.qpos_adr + 2])
-        body_id = model.body(body).id
-        offs = []
-        for name in self.point_sites:
-            site = model.site(name)
-            if int(site.bodyid[0]) != body_id:
-                raise ValueError(f"site {name} must belong to body {body}")
-            offs.append(np.asarray(site.pos, np.float32))
-        self.point_offsets = np.stack(offs)  # [2, 3] in the object frame
+        self.home_qpos = np.asarray(model.key("home").qpos, np.float32)
 
     # -- per episode --------------------------------------------------------------------------
 
     def goal(self, xp, sampler, key):
         """Desired goal [2, 3] (float32) drawn with ``key``."""
-        cfg = self.config
-        if self.has_object:
-            return object_goal(xp, sampler, key, cfg, self.rest_z, self.point_offsets)
-        return reach_goal(xp, sampler, key, cfg.goal_low, cfg.goal_high)
+        raise NotImplementedError
 
     def init_qpos(self, xp, sampler, key):
-        """Initial qpos [nq]: the home keyframe, with the object placed in object tasks."""
-        if self.has_object:
-            return object_init_qpos(xp, sampler, key, self.config, self.home_qpos,
-                                    self.qpos_adr, self.rest_z)
+        """Initial qpos [nq]: the home keyframe."""
         return xp.asarray(self.home_qpos)
 
     def reset(self, xp, sampler, key):
@@ -246,9 +219,8 @@ class TaskRules:
     # -- per step -----------------------------------------------------------------------------
 
     def achieved_goal(self, arm: Mapping[str, Any], obj: Mapping[str, Any]):
-        """Achieved goal [..., 2, 3] from `mjx_envs.observation`'s readings: the object points
-        in object tasks, the tool centre points in reach."""
-        return obj["object_point"] if self.has_object else arm["grip_pos"]
+        """Achieved goal [..., 2, 3] from `mjx_envs.observation`'s readings."""
+        raise NotImplementedError
 
     def goal_distance(self, xp, achieved_goal, desired_goal):
         return goal_distance(xp, achieved_goal, desired_goal)
@@ -269,3 +241,44 @@ class TaskRules:
     def contact_terms(self, xp, clearance):
         cfg = self.config
         return contact_terms(xp, clearance, cfg.arm_clearance, cfg.arm_contact_penalty)
+
+
+class ObjectRules(TaskRules):
+    """The rules shared by the object tasks (push, pickup, pot): the object placed at a pose
+    ~ U(init_low, init_high) on the table, goals from one sampled object pose (module doc), the
+    object points as achieved goals. ``objects``: (free joint, body, (left point site, right
+    point site)); the object's qpos address, resting height and point offsets are read from
+    ``model``."""
+
+    has_object = True
+
+    def __init__(self, config, model, objects):
+        super().__init__(config, model)
+        joint, body, sites = objects
+        names = [model.joint(i).name for i in range(model.njnt)]
+        if joint not in names:
+            raise ValueError(f"the scene {config.scene!r} has no object joint {joint!r} "
+                             f"(joints: {names}); is it the task's scene?")
+        self.object_joint, self.object_body, self.point_sites = joint, body, tuple(sites)
+        self.qpos_adr = int(model.jnt_qposadr[model.joint(joint).id])
+        self.rest_z = float(self.home_qpos[self.qpos_adr + 2])
+        body_id = model.body(body).id
+        offs = []
+        for name in self.point_sites:
+            site = model.site(name)
+            if int(site.bodyid[0]) != body_id:
+                raise ValueError(f"site {name} must belong to body {body}")
+            offs.append(np.asarray(site.pos, np.float32))
+        self.point_offsets = np.stack(offs)  # [2, 3] in the object frame
+
+    def goal(self, xp, sampler, key):
+        return object_goal(xp, sampler, key, self.config, self.rest_z, self.point_offsets)
+
+    def init_qpos(self, xp, sampler, key):
+        """Initial qpos [nq]: the home keyframe with the object placed."""
+        return object_init_qpos(xp, sampler, key, self.config, self.home_qpos, self.qpos_adr,
+                                self.rest_z)
+
+    def achieved_goal(self, arm, obj):
+        """The object points [..., 2, 3]."""
+        return obj["object_point"]

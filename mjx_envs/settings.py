@@ -4,9 +4,11 @@ MuJoCo at import).
 `TaskConfig` holds the fields every task has; `ObjectTaskConfig` adds the object's initial and
 goal pose ranges (push, pickup, pot); `LiftTaskConfig` adds the training-only task-distribution
 options of the lifting tasks (pickup, pot: `TRAINING_ONLY_FIELDS`, switched off for test
-episodes by `test_overrides`). `TASK_SETTINGS` holds each task's values; the JAX env
-(`mjx_envs.make`), the NumPy simulator (`mjx_envs.numpy_env`), the Gymnasium adapter
-(`mjx_envs.gym_env`) and the robot client all read them from here. Fields are declared with
+episodes by `test_overrides`). Each task's values are declared in its module
+(`mjx_envs/tasks/<task>.py`) and registered (`mjx_envs.registry`); `TASKS`, `TASK_SETTINGS`
+and `OBJECTS` here are derived from the registry. The JAX env (`mjx_envs.make`), the NumPy
+simulator (`mjx_envs.numpy_env`), the Gymnasium adapter (`mjx_envs.gym_env`) and the robot
+client all read them from here. Fields are declared with
 `mjx_envs.schema.spec`: type, valid range and docstring, used by validation and ``--help``.
 """
 
@@ -14,9 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from mjx_envs import registry
 from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
 
-TASKS = ("reach", "push", "pickup", "pot")
 PHYSICS_VERSION = 2
 """Version of the simulated physics (the MJCF scenes in assets/ and how the engines step them).
 1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger boxes, finger-pot body and
@@ -29,8 +31,10 @@ physics it was trained on (its record: config.json's and the export's ``physics_
 absent = 1)."""
 
 
-PHYSICS_CHANGES = {2: ("push", "pickup", "pot")}
-"""the tasks whose physics each version changed (version 2: finger contacts; reach has none)"""
+def physics_changed(version: int, task: str) -> bool:
+    """Whether physics `version` changed how `task` acts: version 2 changed the finger
+    contacts, so every task with an object (reach and unknown tasks: no)."""
+    return version == 2 and registry.is_task(task) and registry.get(task).object is not None
 
 PHYSICS_V1 = dict(
     finger_size=(0.012, 0.006, 0.035),
@@ -60,12 +64,15 @@ def physics_version_note(recorded, task: str, simulated: int | None = None) -> s
     version = recorded_physics_version(recorded)
     now = PHYSICS_VERSION if simulated is None else int(simulated)
     lo, hi = sorted((version, now))
-    if not any(task in PHYSICS_CHANGES.get(v, ()) for v in range(lo + 1, hi + 1)):
+    if not any(physics_changed(v, task) for v in range(lo + 1, hi + 1)):
         return None
     return (f"trained with physics version {version}, simulated here with version {now} "
             f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "
             f"training")
 
+
+DEFAULT_TASK = "reach"
+"""the task of a command or env that names none"""
 
 PHYSICS = ("auto", "mjx", "c")
 """physics backends: auto = MJX on an accelerator, MuJoCo's C engine on a CPU"""
@@ -247,66 +254,43 @@ def _check_ordered(cfg, lo: str, hi: str) -> None:
 
 # Contact tasks: a 0.005 s timestep (contacts at 0.01 s tunnel and eject the bar at 1.25 m/s
 # pushes) with 8 substeps keeps the control period at 0.04 s; success radius 0.05 m (paper 4.1).
-_CONTACT = dict(cone="elliptic", timestep=0.005, n_substeps=8, distance_threshold=0.05)
+CONTACT_DEFAULTS = dict(cone="elliptic", timestep=0.005, n_substeps=8, distance_threshold=0.05)
+"""Settings shared by the contact tasks (push, pickup, pot; ``TaskConfig(**CONTACT_DEFAULTS,
+...)`` in a task's module)."""
 
-TASK_SETTINGS: dict[str, TaskConfig] = {
-    "reach": TaskConfig(scene="scene_reach.xml", distance_threshold=0.02, lock_fingers=True,
-                        cone="pyramidal"),
-    # bar centre within 5 mm of (0.25, 0), yaw +-0.1 rad; the goal pose lies 0.06-0.08 m away in
-    # any direction with yaw +-0.15 rad, so no episode starts solved (the mean of the two end
-    # displacements is the centre displacement, >= 0.053 m > threshold). Fingers locked half
-    # open: a 0.05 m gap straddles the 0.03 m neck and never squeezes it.
-    "push": ObjectTaskConfig(
-        scene="scene_push.xml", **_CONTACT, lock_fingers=True, locked_opening=0.025,
-        init_low=(0.245, -0.005, -0.10), init_high=(0.255, 0.005, 0.10),
-        target_low=(0.25, 0.0, 0.0, -0.15), target_high=(0.25, 0.0, 0.0, 0.15),
-        target_radius=(0.06, 0.08)),
-    # goal: bar centre (x, y, height above its resting height, yaw); the grippers keep a fixed
-    # downward orientation, so the goal yaw stays small (+-0.1 rad moves an end by 0.013 m)
-    "pickup": LiftTaskConfig(
-        scene="scene_pickup.xml", **_CONTACT, lock_fingers=False,
-        init_low=(0.23, -0.02, -0.10), init_high=(0.27, 0.02, 0.10),
-        target_low=(0.22, -0.03, 0.05, -0.10), target_high=(0.28, 0.03, 0.15, 0.10),
-        target_radius=(0.0, 0.0)),
-    # goal: pot centre (x, y, height above its resting height, yaw), upright
-    "pot": LiftTaskConfig(
-        scene="scene_pot.xml", **_CONTACT, lock_fingers=False,
-        init_low=(0.23, -0.02, -0.05), init_high=(0.27, 0.02, 0.05),
-        target_low=(0.22, -0.03, 0.05, 0.0), target_high=(0.28, 0.03, 0.12, 0.0),
-        target_radius=(0.0, 0.0)),
-}
 
-# Object tasks: (free joint, body, the two object-point sites: left arm's first).
-OBJECTS: dict[str, tuple[str, str, tuple[str, str]]] = {
-    "push": ("bar", "bar", ("end_l", "end_r")),
-    "pickup": ("bar", "bar", ("end_l", "end_r")),
-    "pot": ("pot", "pot", ("handle_l", "handle_r")),
-}
+def __getattr__(name: str):
+    """The tables derived from the task registry (`mjx_envs.registry`; read when asked for, so
+    a task registered later is in them): ``TASKS`` (names), ``TASK_SETTINGS`` (name -> settings
+    defaults) and ``OBJECTS`` (name -> (free joint, body, point sites), object tasks only)."""
+    if name == "TASKS":
+        return registry.task_names()
+    if name == "TASK_SETTINGS":
+        return {t.name: t.config for t in registry.tasks()}
+    if name == "OBJECTS":
+        return {t.name: t.object for t in registry.tasks() if t.object is not None}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def check_task(task: str) -> None:
-    if task not in TASK_SETTINGS:
-        raise ValueError(f"unknown task {task!r}; available: {sorted(TASK_SETTINGS)}")
+    registry.get(task)
 
 
 def default_config(task: str) -> TaskConfig:
     """The task's settings (a frozen dataclass)."""
-    check_task(task)
-    return TASK_SETTINGS[task]
+    return registry.get(task).config
 
 
 def test_overrides(task: str) -> dict:
     """The env overrides that give the standard task for test episodes: every field of
     `TRAINING_ONLY_FIELDS` that the task has, set to 0 (off); {} for tasks this module does
     not know."""
-    if task not in TASK_SETTINGS:
+    if not registry.is_task(task):
         return {}
-    cfg = TASK_SETTINGS[task]
+    cfg = registry.get(task).config
     names = fields(cfg)
     return {name: type(getattr(cfg, name))(0) for name in TRAINING_ONLY_FIELDS if name in names}
 
-
-test_overrides.__test__ = False  # not a pytest test when imported into a test module
 
 
 def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:

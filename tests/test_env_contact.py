@@ -18,7 +18,7 @@ import pytest
 
 import mjx_envs
 from mjx_envs import observation as obs_lib
-from mjx_envs import rules, settings
+from mjx_envs import registry, rules, settings
 from mjx_envs.core import SAMPLER
 from mjx_envs.model import load_model
 from mjx_envs.tasks import scripted
@@ -137,7 +137,7 @@ def _lift_goal(height):
 def test_scripted_push_reaches_targets():
     env = _env("push", "c")
     keys = jax.random.split(jax.random.PRNGKey(1), 6)
-    obs0, g, ag, obj, succ = _run(env, scripted.push_policy, keys, env.episode_length)
+    obs0, g, ag, obj, succ = _run(env, scripted.get_policy("push"), keys, env.episode_length)
     d0 = np.linalg.norm(obs0["achieved_goal"] - g, axis=-1)
     assert np.all(np.max(d0, axis=-1) > env.config.distance_threshold)  # not solved at reset
     d = np.linalg.norm(ag[-1] - g, axis=-1)
@@ -274,8 +274,7 @@ def test_goal_sampling_ranges():
 @functools.cache
 def _task_rules(task):
     cfg = settings.default_config(task)
-    return rules.TaskRules(cfg, load_model(cfg.scene, cfg.timestep, cfg.cone),
-                           settings.OBJECTS.get(task))
+    return registry.make_rules(task, cfg, load_model(cfg.scene, cfg.timestep, cfg.cone))
 
 
 @pytest.mark.parametrize("task", ("reach",) + TASKS)

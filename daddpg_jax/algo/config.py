@@ -9,12 +9,15 @@ schema. Standard library only at import (the NumPy-only robot side imports this 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
+import os
 
 from daddpg_jax.algo.variants import ALGOS
 from daddpg_jax.algo.variants import get as get_variant
+from mjx_envs import registry
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
-from mjx_envs.settings import PHYSICS, TASKS, default_config  # noqa: F401  (PHYSICS re-exported)
+from mjx_envs.settings import DEFAULT_TASK, PHYSICS, default_config  # noqa: F401  (PHYSICS re-exported)
 
 HER_MODES = ("future", "final", "none")
 OTHER_ACTIONS = ("buffer", "policy")
@@ -25,9 +28,15 @@ class TrainConfig:
     """Every training setting; see each field's docstring (``run.py --help`` prints them)."""
 
     task: str = spec(
-        "reach",
-        "task name passed to `mjx_envs.make` (reach, push, pickup, pot)",
-        choices=TASKS)
+        DEFAULT_TASK,
+        "task name passed to `mjx_envs.make`: a registered task (mjx_envs.registry; "
+        "`--help` lists them)",
+        nonempty=True)
+    task_module: str = spec(
+        "",
+        "module that registers the task when it is not built in (a dotted name importable "
+        "from PYTHONPATH, e.g. 'my_tasks.slide'); imported before the task is looked up, so "
+        "that every command given the run's config.json finds the task; '' = built in")
     algo: str = spec(
         "daddpg",
         "'daddpg': actors see both arms, centralized critics; 'maddpg': actors see their own "
@@ -155,8 +164,8 @@ class TrainConfig:
         low=0)
     n_demos: int = spec(
         0,
-        "scripted demonstration episodes (the task's controller in "
-        "mjx_envs/tasks/scripted.py) rolled out once at init and kept in a fixed demo buffer "
+        "scripted demonstration episodes (the task's controller, `scripted_policy` in "
+        "mjx_envs/tasks/<task>.py) rolled out once at init and kept in a fixed demo buffer "
         "beside the replay (0 = none: the paper's setting). Not part of the paper: with "
         "n_demos > 0 every update adds `demo_batch` HER-relabelled demo transitions to the "
         "batch of critics and actors and a behaviour-cloning term on them (demonstrations as "
@@ -177,6 +186,11 @@ class TrainConfig:
         "rates the demo action above the actor's own (Q filter)")
 
     def __post_init__(self):
+        try:
+            registry.import_task_module(self.task_module)
+            registry.get(self.task)
+        except ValueError as e:
+            raise ConfigError(f"task: {e}") from None
         finalize(self)
 
     @property
@@ -209,88 +223,61 @@ BASE_N_BATCHES = 40
 REPLAY_RATIO = BASE_N_BATCHES * BASE_BATCH / (BASE_NUM_ENVS * 50)
 MAX_BATCH = 8192
 MIN_BUFFER_CYCLES = 20
-# CPU, many envs: the update work per cycle is capped at CPU_MAX_UPDATES updates of at most
-# CPU_MAX_BATCH (100 updates of 1024 took ~1.7 s on the 2-core CPU, about as long as the C
-# engine's rollout of 2048 reach envs, ~2.1 s: docs/RESULTS.md), and an epoch holds about
-# CPU_EPOCH_ENV_STEPS env steps (an evaluation every ~30 s at 2048 envs) up to the task's
-# n_cycles. At num_envs <= 16 the cap does not bind: the replay-ratio rule alone.
+# CPU, many envs: at most CPU_MAX_UPDATES updates of at most CPU_MAX_BATCH per cycle, and an
+# epoch of about CPU_EPOCH_ENV_STEPS env steps up to the task's n_cycles; why these values:
+# docs/TRAINING.md, "Defaults and presets".
 CPU_MAX_BATCH = 1024
 CPU_MAX_UPDATES = 100
 CPU_EPOCH_ENV_STEPS = 300_000
-
-# Per-task preset values, on a CPU and on an accelerator (device "gpu"/"tpu").
-# CPU: n_cycles follows the HER baselines (20 for reach, 50 otherwise); n_epochs is a budget.
-# Accelerator: MJX physics, ACCELERATOR_NUM_ENVS envs by default, the same replay-ratio rule,
-# and n_cycles chosen so that an epoch (cycles between evaluations and checkpoints) holds about
-# `epoch_env_steps` env steps whatever num_envs is: one epoch then stays well inside a 10-minute
-# device command and `--time-budget` + `--resume` chunk a run. n_epochs is a budget in epochs
-# (total env steps = n_epochs * epoch_env_steps). NOT measured on an accelerator: starting
-# points, see docs/SCALING.md. Pick up on a CPU uses 3-step returns: with its grasped starts
-# they halved the env steps and the wall clock to 0.9 test success (docs/RESULTS.md, "Pick up:
-# what each ingredient contributes"); other tasks keep one-step targets (not measured there).
-TASK_PRESETS = {
-    "reach": dict(cpu=dict(n_cycles=20, n_epochs=20),
-                  accelerator=dict(epoch_env_steps=400_000, n_epochs=10)),
-    "push": dict(cpu=dict(n_cycles=50, n_epochs=100),
-                 accelerator=dict(epoch_env_steps=1_000_000, n_epochs=40)),
-    "pickup": dict(cpu=dict(n_cycles=50, n_epochs=200, n_step=3),
-                   accelerator=dict(epoch_env_steps=1_000_000, n_epochs=80)),
-    "pot": dict(cpu=dict(n_cycles=50, n_epochs=300),
-                accelerator=dict(epoch_env_steps=1_000_000, n_epochs=120)),
-}
 ACCELERATOR_NUM_ENVS = 4096
 DEVICES = ("cpu", "gpu", "tpu")
 
-TASK_ENV_PRESETS = {
-    "pickup": dict(grasp_start_fraction=0.5),
-    "pot": dict(grasp_start_fraction=0.5),
-}
-"""Env overrides a new run of the task trains with unless --env says otherwise: the training
-task distribution measured to learn the task from scratch (half the episodes start from a
-grasped state; goals at rest height measured no faster, so off; docs/RESULTS.md, "Pick up and
-pot from scratch"). Test episodes always use the standard task
-(mjx_envs.settings.test_overrides)."""
+
+def task_presets(task: str) -> dict:
+    """The task's preset values (its module's `mjx_envs.registry.Task`): ``cpu`` (n_cycles,
+    n_epochs, other TrainConfig fields), ``accelerator`` (epoch_env_steps, n_epochs) and ``env``
+    (env overrides a new run trains with unless --env says otherwise; test episodes always use
+    the standard task, mjx_envs.settings.test_overrides). ConfigError for an unknown task."""
+    try:
+        t = registry.get(task)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    return dict(cpu=dict(t.cpu_preset), accelerator=dict(t.accelerator_preset),
+                env=dict(t.env_preset))
 
 
 ROBUST_ENV = dict(obs_noise=0.015, obs_dropout=0.1, obs_bias=0.005, latency=1,
                   base_offset=0.005, base_yaw=2.0, finger_force=0.2, action_scale=0.1,
                   object_mass=0.3, object_size=0.002, object_friction=0.3, table_height=0.005)
 """Bounds of the `--robust` training preset (each episode draws its values up to them;
-mjx_envs/perturb.py, mjx_envs/randomize.py): observation noise up to 1.5 cm std, 10 %
-object-observation dropout, up to 5 mm of bias, 0 or 1 control step of action latency, and
-moderate physics randomization (the object fields only in the tasks that have an object).
-Chosen to cover the evaluation point of docs/RESULTS.md ("Robustness": 1 cm noise + 1 step of
-latency); latency up to 2 steps was measured worse at that point on pick up and did not make
-2 steps work either. Test episodes stay nominal (settings.TRAINING_ONLY_FIELDS)."""
+mjx_envs/perturb.py, mjx_envs/randomize.py); the object fields apply only to tasks that have an
+object. Test episodes stay nominal (settings.TRAINING_ONLY_FIELDS). Why these values:
+docs/TRAINING.md, "Task presets"."""
 
 ROBUST_OBS = dict(action_history=1)
 """What the `--robust` preset's policy observes besides the task's observation: each arm's last
 action (mjx_envs/observation.py), so that the action latency holds back is not hidden from it.
-Part of the policy's input, so test episodes and exports keep it. Measured on pick up (3 seeds,
-docs/RESULTS.md, "Robustness"): at 1 cm noise + 1 step of latency 0.82 against 0.79 without it,
-at 2 steps of latency (never trained) 0.44 against 0.07."""
+Part of the policy's input, so test episodes and exports keep it (docs/TRAINING.md, "Task
+presets")."""
 
 
 def robust_env(task: str) -> dict:
     """The `--robust` training preset's env overrides for `task`: the ROBUST_ENV bounds of the
     fields the task has, and ROBUST_OBS."""
-    if task not in TASK_PRESETS:
-        raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
+    task_presets(task)   # ConfigError for an unknown task
     fields = default_config(task)
     return {k: v for k, v in {**ROBUST_ENV, **ROBUST_OBS}.items() if hasattr(fields, k)}
 
 
 def preset_env(task: str, robust: bool = False) -> dict:
-    """The env overrides of `task`'s training preset (TASK_ENV_PRESETS; {} for most tasks),
-    plus `robust_env(task)` when `robust`."""
-    if task not in TASK_PRESETS:
-        raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
-    return {**TASK_ENV_PRESETS.get(task, {}), **(robust_env(task) if robust else {})}
+    """The env overrides of `task`'s training preset (`task_presets`' ``env``; {} for most
+    tasks), plus `robust_env(task)` when `robust`."""
+    return {**task_presets(task)["env"], **(robust_env(task) if robust else {})}
 
 
 def current_device() -> str:
     """The platform JAX runs on ('cpu', 'gpu' or 'tpu'; imports JAX)."""
-    import jax
+    import jax  # lazy: this module is read without JAX (the robot side, --help)
 
     backend = jax.default_backend()
     return backend if backend in DEVICES else "gpu"
@@ -306,9 +293,6 @@ def guess_device() -> str:
     """The platform JAX would run on, guessed without importing JAX (for --help and argument
     errors, which stay fast): the first entry of JAX_PLATFORMS if set, 'gpu' / 'tpu' when one
     of JAX's accelerator plugins is installed, else 'cpu'. A run asks JAX (`current_device`)."""
-    import importlib.util
-    import os
-
     first = os.environ.get("JAX_PLATFORMS", "").split(",")[0].strip().lower()
     if first:
         return first if first in DEVICES else "gpu"
@@ -346,11 +330,10 @@ def preset(task: str, num_envs: int | None = None, episode_length: int = 50,
     On an accelerator: physics "mjx", num_envs=None picks ACCELERATOR_NUM_ENVS (4096), the same
     batch/updates rule, and n_cycles = round(epoch_env_steps / (num_envs * T)) (at least 1) so
     that an epoch holds about the same number of env steps at any num_envs (reach 4e5, contact
-    tasks 1e6); n_epochs is the task's budget (TASK_PRESETS).
+    tasks 1e6); n_epochs is the task's budget (`task_presets`).
     Returns a dict to pass as `TrainConfig(**preset(...))` or `cfg.replace(**preset(...))`.
     """
-    if task not in TASK_PRESETS:
-        raise ConfigError(f"unknown task {task!r}; known: {sorted(TASK_PRESETS)}")
+    presets = task_presets(task)
     device = current_device() if device is None else device
     if device not in DEVICES:
         raise ConfigError(f"device must be one of {DEVICES}, got {device!r}")
@@ -372,11 +355,11 @@ def preset(task: str, num_envs: int | None = None, episode_length: int = 50,
                buffer_size=buffer_size)
     steps_per_cycle = num_envs * episode_length
     if accel:
-        a = TASK_PRESETS[task]["accelerator"]
+        a = presets["accelerator"]
         out.update(physics="mjx", n_epochs=a["n_epochs"],
                    n_cycles=max(1, int(round(a["epoch_env_steps"] / steps_per_cycle))))
     else:
-        c = TASK_PRESETS[task]["cpu"]
+        c = presets["cpu"]
         out.update(c, n_batches=min(n_batches, CPU_MAX_UPDATES),
                    n_cycles=min(c["n_cycles"],
                                 max(1, int(round(CPU_EPOCH_ENV_STEPS / steps_per_cycle)))))

@@ -13,7 +13,7 @@ from daddpg_jax.algo.config import TrainConfig, build_config, preset, preset_env
 from mjx_envs import schema, settings
 from mjx_envs.schema import ConfigError
 
-FIELD_FLAGS = ("algo", "her", "physics", "seed")
+FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
 """flags that are also TrainConfig fields (flag attribute = field name)"""
 
 
@@ -69,7 +69,7 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
             cfg = cfg.replace(**preset(args.task or cfg.task, args.num_envs or cfg.num_envs,
                                        device=args.device))
     else:
-        task = args.task or "reach"
+        task = args.task or settings.DEFAULT_TASK
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
     if args.robust:   # a resume refused --robust above
         env_over.update(robust_env(cfg.task))

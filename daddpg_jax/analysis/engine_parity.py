@@ -55,7 +55,7 @@ from mjx_envs import observation as obs_lib
 from mjx_envs.physics import backends
 from mjx_envs.tasks import scripted
 
-TASKS = ("push", "pickup", "pot")
+TASKS = tuple(mjx_envs.settings.OBJECTS)   # the tasks with an object
 SHORT_STEPS = 10
 """open-loop control steps of the divergence measure (tests/test_env_contact.py: T_SHORT)"""
 TEST_KEY, TEST_EPISODES = 7, 2

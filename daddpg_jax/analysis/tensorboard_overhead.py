@@ -16,6 +16,7 @@ import time
 
 from daddpg_jax.algo.config import build_config
 from daddpg_jax.running import runner, tracking
+from mjx_envs.settings import DEFAULT_TASK
 
 
 def steps_per_s(rows) -> float:
@@ -28,7 +29,7 @@ def steps_per_s(rows) -> float:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     epochs = int(argv[0]) if argv else 5
-    cfg = build_config("reach", device="cpu").replace(n_epochs=epochs, physics="c")
+    cfg = build_config(DEFAULT_TASK, device="cpu").replace(n_epochs=epochs, physics="c")
     spent = []
 
     class Timed(tracking.TensorBoardLogger):

@@ -27,7 +27,7 @@ import time
 
 from daddpg_jax.algo.config import DEVICES, TrainConfig, current_device, preset
 from mjx_envs import schema, settings
-from mjx_envs.settings import ENGINES, TASKS
+from mjx_envs.settings import DEFAULT_TASK, ENGINES, TASKS
 
 CPU_SIZES = [1, 64, 256]
 CPU_TRAIN_SIZES = [2, 16]
@@ -36,7 +36,7 @@ CPU_TRAIN_SIZES = [2, 16]
 def build_parser():
     p = argparse.ArgumentParser(prog="daddpg-benchmark", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tasks", nargs="+", default=["reach"], choices=TASKS,
+    p.add_argument("--tasks", nargs="+", default=[DEFAULT_TASK], choices=TASKS,
                    help="tasks to measure")
     p.add_argument("--physics", nargs="+", default=sorted(ENGINES), choices=ENGINES,
                    help="physics engines to measure")
@@ -87,7 +87,7 @@ def run(argv=None) -> dict:
     try:
         sets = schema.parse_overrides(TrainConfig, args.set, "--set")
         # any task's field (the object tasks' config holds every field); make() checks the task
-        env_over = schema.parse_overrides(type(settings.default_config("push")), args.env,
+        env_over = schema.parse_overrides(settings.ObjectTaskConfig, args.env,
                                           "--env")
     except schema.ConfigError as e:
         p.error(str(e))

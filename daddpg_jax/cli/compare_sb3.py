@@ -39,13 +39,13 @@ import os
 import sys
 
 from daddpg_jax.tools.sb3_compare import DEFAULT_METHODS, METHODS, compare, run_worker
-from mjx_envs.settings import TASKS
+from mjx_envs.settings import DEFAULT_TASK, TASKS
 
 
 def build_parser():
     p = argparse.ArgumentParser(prog="compare_sb3.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="reach", choices=TASKS)
+    p.add_argument("--task", default=DEFAULT_TASK, choices=TASKS)
     p.add_argument("--time-budget", type=float, default=600.0, metavar="SECONDS",
                    help="training wall clock cap per method (default 600)")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),

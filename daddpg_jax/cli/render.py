@@ -7,7 +7,7 @@ Example: MUJOCO_GL=egl daddpg-render --task reach --out docs/scene_reach.png
 import argparse
 import os
 
-from mjx_envs.settings import TASKS
+from mjx_envs.settings import DEFAULT_TASK, TASKS
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -15,7 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="daddpg-render", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="reach", choices=TASKS, help="task whose scene to render")
+    p.add_argument("--task", default=DEFAULT_TASK, choices=TASKS, help="task whose scene to render")
     p.add_argument("--out", default="docs/scene_reach.png", help="output PNG path")
     p.add_argument("--seed", type=int, default=0, help="seed of the reset (goal markers)")
     p.add_argument("--width", type=int, default=960, help="image width, pixels")

@@ -22,13 +22,13 @@ import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
 
-from mjx_envs import schema, settings  # noqa: E402
+from mjx_envs import registry, schema, settings  # noqa: E402  (JAX-free; after MUJOCO_GL)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="daddpg-scripted-demo", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", required=True, choices=["push", "pickup", "pot"],
+    p.add_argument("--task", required=True, choices=registry.scripted_task_names(),
                    help="task whose scripted controller to run (reach has none)")
     p.add_argument("--episodes", type=int, default=4,
                    help="episodes rolled out at once, one reset key each (default 4)")

@@ -33,7 +33,7 @@ from daddpg_jax.algo.config import DEVICES, HER_MODES, PHYSICS, TrainConfig, gue
 from daddpg_jax.algo.resolve import field_help, resolve_config
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
 from daddpg_jax.running import distributed, tracking
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 from mjx_envs.schema import ConfigError
 
 
@@ -47,6 +47,9 @@ def build_parser(device: str | None = None):
     p.add_argument("--task", choices=settings.TASKS, default=None,
                    help="task to train (default reach; taken from config.json with --resume "
                         "or --config)")
+    p.add_argument("--task-module", default=None, metavar="MODULE",
+                   help="module that registers a task defined outside this package (recorded "
+                        "in config.json as task_module; docs/TASKS.md, 'Adding a task')")
     p.add_argument("--num-envs", type=int, default=None,
                    help="parallel environments; the task preset scales batch size and updates "
                         "per cycle with it (default: the preset's: 2 on a CPU, 4096 on an "
@@ -142,7 +145,7 @@ def _add_distributed_flags(p) -> None:
 def join_job(argv=None):
     """Joins a multi-process job when the flags or the cluster's variables ask for one (before
     anything else uses JAX); returns its Layout or None. Exits 2 with one line on failure."""
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     _add_distributed_flags(pre)
     args, _ = pre.parse_known_args(argv)
     try:
@@ -280,8 +283,20 @@ def _epoch_line(row) -> str:
             f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
 
 
+def import_task_module(argv) -> None:
+    """Imports --task-module before the parser is built, so that --task lists its task."""
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--task-module", default=None)
+    try:
+        registry.import_task_module(pre.parse_known_args(argv)[0].task_module)
+    except ValueError as e:
+        print(f"daddpg-train: error: --task-module: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 def main(argv=None):
     layout = join_job(argv)
+    import_task_module(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.stop_at_success is not None and not 0.0 <= args.stop_at_success <= 1.0:

@@ -1,8 +1,9 @@
 """The object-task base shared by Push, Pick up and Pot: an object with a free joint, two object
 points (one per arm) at fixed offsets in the object frame, goals from one sampled object pose.
 
-The rules themselves (placement, goals, achieved goals) are `mjx_envs.rules`; the object's
-joint, body and point sites are the task's entry of `mjx_envs.settings.OBJECTS`. With
+The rules themselves (placement, goals, achieved goals) are the task's (`mjx_envs.rules.ObjectRules`
+or a subclass); the object's joint, body and point sites are the task's ``object``
+(`mjx_envs.registry.Task`). With
 ``grasp_start_fraction > 0`` (pickup, pot; training only) the env records grasped states when
 it is built (`mjx_envs.tasks.grasp_start`, a few seconds, cached per process) and starts that
 fraction of its episodes from one of them.

@@ -1,4 +1,6 @@
-"""Scripted controllers for the contact tasks: pure functions ``obs -> action``.
+"""The building blocks of the tasks' scripted controllers, and the two-arm grasp controller
+that pickup and pot share. Each task's controller is its module's ``scripted_policy``
+(`mjx_envs.registry.Task.scripted`; `get_policy` looks it up).
 
 Each controller reads only the env's observation dict (``observation`` [..., 2, obs_size],
 ``achieved_goal`` [..., 2, 3], ``desired_goal`` [..., 2, 3]) and returns the 8-d action
@@ -17,29 +19,31 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from mjx_envs import observation as obs_lib
+from mjx_envs import registry
 
-_L = obs_lib.obs_layout()
+_LAYOUT = obs_lib.obs_layout()
 GRASP_DZ = -0.005
 """Tool centre point height above the object point while holding it, metres."""
 HOVER_DZ = 0.07
 """Height above the object point at which a gripper travels before descending, metres."""
 
 
-def _split(obs):
+def split_obs(obs):
+    """(gripper positions, finger openings, achieved goals, desired goals) of each arm."""
     o = obs["observation"]
-    grip = o[..., slice(*_L["grip_pos"])]
-    fingers = o[..., slice(*_L["fingers"])]
+    grip = o[..., slice(*_LAYOUT["grip_pos"])]
+    fingers = o[..., slice(*_LAYOUT["fingers"])]
     return grip, fingers, obs["achieved_goal"], obs["desired_goal"]
 
 
-def _to_action(delta, finger, max_delta):
+def to_action(delta, finger, max_delta):
     """Per-arm displacement [..., 2, 3] and finger command [..., 2] -> action [..., 8]."""
     a = jnp.clip(delta / max_delta, -1.0, 1.0)
     a = jnp.concatenate([a, jnp.clip(finger, -1.0, 1.0)[..., None]], axis=-1)
     return a.reshape(a.shape[:-2] + (8,)).astype(jnp.float32)
 
 
-def _approach(grip, point, xy_tol=0.008):
+def approach(grip, point, xy_tol=0.008):
     """Move above ``point``, then straight down to the holding height.
 
     Returns (delta [..., 2, 3], at_point [..., 2]): at_point when the gripper is aligned over the
@@ -67,21 +71,6 @@ def _approach(grip, point, xy_tol=0.008):
     return delta, at_point
 
 
-def push_policy(obs, max_delta: float = 0.05):
-    """Push: straddle each neck with the (locked, half-open) fingers, then drag both ends to
-    their targets together; an arm that is in place waits for the other."""
-    grip, _, point, goal = _split(obs)
-    delta, at_point = _approach(grip, point)
-    both = jnp.all(at_point, axis=-1, keepdims=True)
-    carry = goal - point
-    carry = carry.at[..., 2].set(point[..., 2] + GRASP_DZ - grip[..., 2])
-    # keep the gripper centred on its neck while dragging
-    carry = carry.at[..., :2].add(0.5 * (point - grip)[..., :2])
-    wait = jnp.zeros_like(delta)
-    delta = jnp.where(both[..., None], carry, jnp.where(at_point[..., None], wait, delta))
-    return _to_action(delta, jnp.zeros(delta.shape[:-1]), max_delta)
-
-
 HOLD_OPENING = (0.004, 0.022)
 """Finger opening range (per finger, metres) that means "closed on a neck or handle": a closed
 gripper on nothing reads ~0, an open one 0.04."""
@@ -104,7 +93,7 @@ def holding(obs):
     """Per arm [..., 2]: the grasp controller's signal that the gripper is closed on its object
     point (fingers stopped by the object within `HOLD_OPENING`, gripper still around the point),
     read from the observation dict alone."""
-    grip, fingers, point, _ = _split(obs)
+    grip, fingers, point, _ = split_obs(obs)
     return _holding(grip, fingers, point)
 
 
@@ -113,8 +102,8 @@ def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
     hold, they carry the object to the goal together. ``arms`` selects which arms take part (the
     others stay where they are, open): a one-armed variant is used to show that one gripper
     cannot lift the bar level."""
-    grip, fingers, point, goal = _split(obs)
-    delta, at_point = _approach(grip, point)
+    grip, fingers, point, goal = split_obs(obs)
+    delta, at_point = approach(grip, point)
     holding = _holding(grip, fingers, point)
     active = jnp.asarray(arms)
     both = jnp.all(holding | ~active, axis=-1, keepdims=True)
@@ -128,7 +117,7 @@ def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
     # open while approaching, close once at the point (and keep closed while carrying)
     finger = jnp.where(at_point | holding, -1.0, 1.0)
     finger = jnp.where(active, finger, 1.0)
-    return _to_action(delta, finger, max_delta)
+    return to_action(delta, finger, max_delta)
 
 
 def one_arm_grasp_policy(obs, max_delta: float = 0.05):
@@ -136,10 +125,17 @@ def one_arm_grasp_policy(obs, max_delta: float = 0.05):
     return grasp_policy(obs, max_delta, arms=(True, False))
 
 
-POLICIES = {"push": push_policy, "pickup": grasp_policy, "pot": grasp_policy}
-
-
 def get_policy(task: str):
-    if task not in POLICIES:
-        raise ValueError(f"no scripted controller for task {task!r}; available: {sorted(POLICIES)}")
-    return POLICIES[task]
+    """The scripted controller ``(obs, max_delta) -> action`` of a registered task."""
+    policy = registry.get(task).scripted
+    if policy is None:
+        have = sorted(t.name for t in registry.tasks() if t.scripted is not None)
+        raise ValueError(f"no scripted controller for task {task!r}; available: {have}")
+    return policy
+
+
+def __getattr__(name: str):
+    """``POLICIES``: task name -> scripted controller, of the registered tasks that have one."""
+    if name == "POLICIES":
+        return {t.name: t.scripted for t in registry.tasks() if t.scripted is not None}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
