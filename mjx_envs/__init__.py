@@ -124,7 +124,7 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
 
     cls = _task_class(task)
     cfg = replace_config(cls.default_config(), **overrides)
-    return cls(cfg, physics=physics)
+    return importlib.import_module("mjx_envs.wrappers").wrap(cls(cfg, physics=physics))
 
 
 __all__ = ["make", "default_config", "register", "State", "TaskConfig", "DualArmEnv", "TASKS",

@@ -47,6 +47,10 @@ OBJECT_FIELDS = ("object_pos", "object_rot", "object_velp", "object_velr")
 
 ACTION_SIZE = 8
 
+STREAM = 0x5E750
+"""the perturbations' own PRNG stream (``fold_in`` of the trainer's reset key, second seed word
+of the robot client's generator): the task's draws stay those of the unperturbed env"""
+
 _SLICES = obs_layout()
 
 

@@ -61,6 +61,9 @@ from mjx_envs.settings import RANDOMIZATION_FIELDS as FIELDS
 OBJECT_FIELDS = FIELDS[:4]
 
 NUM_ARMS = 2
+STREAM = 0x9A7D0
+"""``fold_in`` constant of the randomization's draws from the reset key (`mjx_envs.wrappers.
+Randomize`): the task's draws stay those of the nominal env"""
 PARAMS = 13
 """length of one env's parameter vector: mass scale, size delta, friction scale, table delta,
 finger scale, base offsets [2, 3], base yaws [2] (radians)"""
