@@ -55,6 +55,7 @@ import dataclasses
 
 import numpy as np
 
+from mjx_envs.observation import obs_layout
 from mjx_envs.rules import yaw_quat
 from mjx_envs.settings import RANDOMIZATION_FIELDS as FIELDS
 
@@ -308,8 +309,6 @@ def believed_obs(xp, ix: ModelIndex, params, obs):
     nominal frame (what the arm believes); in object tasks the object's position and velocity
     relative to the gripper (object_rel_pos, object_velp) follow the believed gripper (reach
     keeps its zero object terms)."""
-    from mjx_envs.observation import obs_layout
-
     sl = obs_layout()
 
     def field(name):

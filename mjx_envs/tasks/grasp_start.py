@@ -22,8 +22,8 @@ both grippers are closed on the object, once per process and task config (cached
 Only the simulator states are kept (qpos, qvel and the two Cartesian targets), never the
 controller's actions. The env samples from them at reset (`mix`). The states are recorded with
 the C engine whatever engine the env uses (an MJX env starts from the same states; recording
-with MJX would compile a second MJX program). On the project's 2-core CPU the recording takes
-2-4 s per task at the default 64 states (80 tries of 30 control steps).
+with MJX would compile a second MJX program). At the default 64 states the recording plays 80
+tries of 30 control steps (its time: docs/TRAINING.md, "Training task distribution").
 """
 
 from __future__ import annotations
