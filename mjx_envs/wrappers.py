@@ -101,7 +101,8 @@ class Randomize(Wrapper):
         qpos, qvel, mocap, grasped = env.start_state(key, qpos)
         if r.physical:
             # a recorded grasped state is geometry-exact only under the nominal geometry: such
-            # an episode keeps the size, table and arm bases nominal (and its goal)
+            # an episode keeps the size, table and arm bases nominal (and its goal); without
+            # grasped starts `grasped` is a constant False and this changes nothing
             nominal = jnp.asarray(randomize.nominal_params())
             keep = jnp.asarray(randomize.GEOMETRY_MASK)
             rand = dict(rand, params=jnp.where(grasped & keep, nominal, rand["params"]))
