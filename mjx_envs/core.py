@@ -19,7 +19,6 @@ history), each with the same ``reset`` / ``step`` contract.
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 import jax
@@ -90,12 +89,9 @@ class DualArmEnv:
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
         self.rules = rules.TaskRules(cfg, self.mj_model, settings.OBJECTS.get(self.task_name))
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
-
-    @functools.cached_property
-    def backend(self):
-        """The physics engine of the nominal model, built on first use (`mjx_envs.wrappers.
-        Randomize` sets one that takes per-env model parameters instead)."""
-        return make_backend(self.physics, self.mj_model, self.config.n_substeps)
+        # the nominal model's engine (`mjx_envs.wrappers.Randomize` replaces it by one that
+        # takes per-env model parameters)
+        self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
 
     @property
     def unwrapped(self) -> DualArmEnv:

@@ -1,6 +1,6 @@
 """The env's concerns as wrappers (mjx_envs/wrappers.py) and the observation pipeline shared
-with the robot client (mjx_envs/pipeline.py). Default tier: no MJX; the C-engine reset below
-costs ~3 s, everything else well under 1 s."""
+with the robot client (mjx_envs/pipeline.py). Default tier: no MJX; the traced reset below
+costs ~3 s, everything else well under 1 s. The golden rollouts are e2e."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 import mjx_envs
 from mjx_envs import perturb, pipeline, rules, wrappers
 from mjx_envs.core import DualArmEnv
-from mjx_envs.physics import backends
 from mjx_envs.tasks import grasp_start
+from tests import golden_wrapped
 
 
 def _chain(env) -> list[str]:
@@ -44,9 +44,8 @@ def test_make_wraps_the_plain_env_in_the_concerns_its_config_turns_on():
 
 def test_building_a_grasp_start_env_simulates_nothing(monkeypatch):
     """The grasped states are recorded when they are first needed (the first reset traced),
-    not when the env is built: building runs no recording and builds no physics engine."""
-    recorded, engines = [], []
-    make_backend = backends.make_backend
+    not when the env is built."""
+    recorded = []
 
     def fake_record(env_cls, config):
         recorded.append(env_cls.task_name)
@@ -56,17 +55,12 @@ def test_building_a_grasp_start_env_simulates_nothing(monkeypatch):
                                        mocap=np.zeros((2, 2, 3), np.float32), tries=2,
                                        seconds=0.0)
 
-    def counting_backend(*a, **k):
-        engines.append(a[0])
-        return make_backend(*a, **k)
-
     monkeypatch.setattr(grasp_start, "_CACHE", {})
     monkeypatch.setattr(grasp_start, "_record", fake_record)
-    monkeypatch.setattr("mjx_envs.core.make_backend", counting_backend)
     env = mjx_envs.make("pickup", physics="c", grasp_start_fraction=0.5, n_grasp_states=2)
-    assert recorded == [] and engines == []
+    assert recorded == []
     s = jax.eval_shape(env.reset, jax.random.PRNGKey(0))     # traced: now they are needed
-    assert recorded == ["pickup"] and engines == ["c"]
+    assert recorded == ["pickup"]
     assert s.data.qpos.shape == (env.mj_model.nq,)
     assert env.grasp_states.tries == 2 and recorded == ["pickup"]   # once
 
@@ -100,3 +94,19 @@ def test_observation_stages_are_the_same_over_numpy_and_jax():
     np.testing.assert_array_equal(seen3[:, 25:29], 0.0)             # the held period
     np.testing.assert_array_equal(seen3[:, 29:], a2.reshape(2, 4))
     assert not pipeline.Pipeline(pipeline.stages(np, None, None, 2)).perturbs
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("case", golden_wrapped.CASES)
+def test_wrapped_rollouts_match_the_golden_record(case):
+    """Randomization, perturbations, action history and grasped starts on: the same state
+    fields and values as the record (taken before the concerns became wrappers). Cost: ~10-30 s
+    per case (C engine, one compile)."""
+    want = np.load(golden_wrapped.RECORD)
+    got = golden_wrapped.rollout(case)
+    np.testing.assert_array_equal(got.pop("fields"), want[f"{case}/fields"])
+    assert sorted(got) == sorted(k[len(case) + 1:] for k in want.files
+                                 if k.startswith(f"{case}/") and k != f"{case}/fields")
+    for k, v in got.items():
+        # same tolerance as the golden epoch (tests/test_golden_epoch.py)
+        np.testing.assert_allclose(v, want[f"{case}/{k}"], rtol=1e-6, atol=0, err_msg=k)
