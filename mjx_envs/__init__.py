@@ -117,7 +117,7 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
         raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
     cls = registry.env_class(task)
     cfg = replace_config(cls.default_config(), **overrides)
-    return cls(cfg, physics=physics)
+    return importlib.import_module("mjx_envs.wrappers").wrap(cls(cfg, physics=physics))
 
 
 __all__ = ["make", "default_config", "register", "Task", "State", "TaskConfig", "DualArmEnv",

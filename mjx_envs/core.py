@@ -11,6 +11,10 @@ Fetch tasks). A step moves each target by ``max_delta * clip(a[:3], -1, 1)`` met
 that arm's workspace box, with a fixed downward orientation; the weld pulls the arm along. The
 finger command maps [-1, 1] to the finger opening [0, finger_stroke] (or is ignored and the
 fingers held closed when ``lock_fingers``). See docs/ENVIRONMENTS.md for why.
+
+`DualArmEnv` is the plain env; ``mjx_envs.make`` wraps it in the concerns its config turns on
+(`mjx_envs.wrappers`: physics randomization, observation and action perturbations, action
+history), each with the same ``reset`` / ``step`` contract.
 """
 
 from __future__ import annotations
@@ -23,18 +27,18 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, randomize, registry, rules, settings
+from mjx_envs import registry, rules, settings
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
 
 NUM_ARMS = 2
 SAMPLER = rules.JaxSampler()
-PERTURB_STREAM = 0x5E750
-"""fold_in constant of the observation/action perturbations' draws (mjx_envs/perturb.py): the
-task's own draws stay those of the unperturbed env"""
-RANDOMIZE_STREAM = 0x9A7D0
-"""fold_in constant of the physics randomization's draws (mjx_envs/randomize.py)"""
+
+
+def clip_action(action):
+    """A policy action [8] as per-arm commands [2, 4] (dx, dy, dz, finger) in [-1, 1]."""
+    return jnp.clip(jnp.asarray(action, jnp.float32).reshape(NUM_ARMS, 4), -1.0, 1.0)
 
 
 @struct.dataclass
@@ -50,9 +54,11 @@ class State:
 
 
 class DualArmEnv:
-    """Two UR3 arms with grippers. What differs between tasks (goals, object placement,
-    achieved goals, rewards) is ``self.rules``, a `mjx_envs.rules.TaskRules` bound to the task's
-    settings (`mjx_envs.settings`, chosen by ``task_name``) and scene."""
+    """Two UR3 arms with grippers, the plain env: true observations, nominal physics. What
+    differs between tasks (goals, object placement, achieved goals, rewards) is ``self.rules``,
+    a `mjx_envs.rules.TaskRules` bound to the task's settings (`mjx_envs.settings`, chosen by
+    ``task_name``) and scene. Randomization, perturbations and the action history are wrappers
+    around it (`mjx_envs.wrappers`; ``mjx_envs.make`` applies the ones its config turns on)."""
 
     task_name = "base"
     num_arms = NUM_ARMS
@@ -82,22 +88,14 @@ class DualArmEnv:
         self._ws_low = np.asarray(cfg.workspace_low, np.float32)
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
         self.rules = registry.make_rules(self.task_name, cfg, self.mj_model)
-        # static: with every randomization field 0 the env has no randomization code nor carry
-        self.randomization = randomize.Randomization.from_config(cfg)
-        self._rand_index = None
-        if self.randomization.active:
-            obj = settings.OBJECTS.get(self.task_name)
-            self._rand_index = randomize.ModelIndex(self.mj_model, obj[1] if obj else None,
-                                                    self.randomization)
-        self.backend = make_backend(
-            self.physics, self.mj_model, cfg.n_substeps,
-            rand=self._rand_index if self.randomization.physical else None)
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
-        # static: with every perturbation field 0 the env has no perturbation code nor carry
-        self.perturbation = perturb.Perturbation.from_config(cfg)
-        # static: the policy's last k actions end each arm's observation (0 = none, no carry)
-        self.action_history = int(cfg.action_history)
-        self.obs_size = obs_lib.obs_size(self.action_history)
+        # the nominal model's engine (`mjx_envs.wrappers.Randomize` replaces it by one that
+        # takes per-env model parameters)
+        self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
+
+    @property
+    def unwrapped(self) -> DualArmEnv:
+        return self
 
     # -- rewards ----------------------------------------------------------------------------------
 
@@ -122,7 +120,7 @@ class DualArmEnv:
         return self.rules.reward(jnp, jnp.asarray(achieved_goal), jnp.asarray(desired_goal),
                                  info)
 
-    # -- API --------------------------------------------------------------------------------------
+    # -- the parts of reset and step (`mjx_envs.wrappers.Randomize` composes them too) ------------
 
     def _finger_ctrl(self, finger_cmd):
         cfg = self.config
@@ -156,7 +154,7 @@ class DualArmEnv:
              "desired_goal": desired_goal.astype(jnp.float32)}
         return o, reward.astype(jnp.float32), metrics, info
 
-    def _start_state(self, key, qpos):
+    def start_state(self, key, qpos):
         """(qpos, qvel, Cartesian targets, grasped) an episode starts from: the rules' ``qpos``
         at rest and the home targets (`ObjectPoseTask` may start from a grasped state instead:
         grasped = True)."""
@@ -164,111 +162,45 @@ class DualArmEnv:
         return (qpos, jnp.zeros((self.mj_model.nv,), jnp.float32), jnp.asarray(self._home_mocap),
                 jnp.zeros((), bool))
 
-    def _randomize(self, key, goal, qpos):
-        """(goal, qpos, this episode's randomization values, rest shift) with the resting height
-        moved by the object's size and the table's height (mjx_envs/randomize.py)."""
-        values = randomize.draw(jnp, SAMPLER, jax.random.fold_in(key, RANDOMIZE_STREAM),
-                                self.randomization)
-        if self.rules.has_object:
-            z = self.rules.qpos_adr + 2
-            qpos = qpos.at[z].add(values["rest_shift"])
-            goal = goal.at[..., 2].add(values["rest_shift"])
-        return (goal, qpos, dict(params=values["params"], action_scale=values["action_scale"]),
-                values["rest_shift"])
-
-    def _physics_params(self, info):
-        """The backend's per-env parameters (None without physical randomization)."""
-        return info["physics"]["params"] if self.randomization.physical else None
-
-    def _believed(self, obs, info):
-        """The observation as the arms believe it (base calibration error), else as is."""
-        if not self.randomization.moves_base:
-            return obs
-        seen = randomize.believed_obs(jnp, self._rand_index, info["physics"]["params"],
-                                      obs["observation"])
-        return dict(obs, observation=seen.astype(jnp.float32))
-
-    def reset(self, key) -> State:
-        goal, qpos = self.rules.reset(jnp, SAMPLER, key)
-        rand = None
-        if self.randomization.active:
-            goal, qpos, rand, shift = self._randomize(key, goal, qpos)
-        qpos, qvel, mocap, grasped = self._start_state(key, qpos)
-        params = None
-        if rand is not None and self.randomization.physical:
-            if getattr(self, "grasp_states", None) is not None:
-                # a recorded grasped state is geometry-exact only under the nominal geometry:
-                # such an episode keeps the size, table and arm bases nominal (and its goal)
-                nominal = jnp.asarray(randomize.nominal_params())
-                keep = jnp.asarray(randomize.GEOMETRY_MASK)
-                rand = dict(rand, params=jnp.where(grasped & keep, nominal, rand["params"]))
-                if self.rules.has_object:
-                    goal = jnp.where(grasped, goal.at[..., 2].add(-shift), goal)
-            params = rand["params"]
-            if self.randomization.moves_base:
-                mocap = randomize.to_true(jnp, self._rand_index, params, mocap)
+    def launch(self, goal, qpos, qvel, mocap, params=None) -> State:
+        """The episode's first state from its goal and start (``params``: the per-env model
+        parameters of `mjx_envs.randomize`, None = nominal)."""
         data = self.backend.init(qpos, qvel, mocap, params)
-        step = jnp.zeros((), jnp.int32)
-        obs, reward, metrics, info = self._observe(data, goal, step)
-        if rand is not None:
-            info = dict(info, physics=rand)
-            obs = self._believed(obs, info)
-        if self.perturbation.active:
-            k_start, k_carry = jax.random.split(jax.random.fold_in(key, PERTURB_STREAM))
-            seen, carry = perturb.start(jnp, SAMPLER, k_start, self.perturbation,
-                                        obs["observation"])
-            obs = dict(obs, observation=seen)
-            info = dict(info, perturb=dict(carry, key=k_carry))
-        if self.action_history:
-            hist = obs_lib.empty_action_history(jnp, self.action_history)
-            obs = dict(obs, observation=obs_lib.with_action_history(jnp, obs["observation"], hist))
-            info = dict(info, action_history=hist)
+        obs, _, metrics, info = self._observe(data, goal, jnp.zeros((), jnp.int32))
         return State(data=data, obs=obs, reward=jnp.zeros((NUM_ARMS,), jnp.float32),
                      done=jnp.zeros((), jnp.float32), metrics=metrics, info=info)
 
-    def step(self, state: State, action) -> State:
-        a = jnp.clip(jnp.asarray(action, jnp.float32).reshape(NUM_ARMS, 4), -1.0, 1.0)
-        chosen = a
-        p = self.perturbation
-        if p.active:
-            carry = state.info["perturb"]
-            a, carry = perturb.delay(jnp, p, carry, a.reshape(-1))
-            a = a.reshape(NUM_ARMS, 4)
-        r = self.randomization
-        target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
-        delta = self.config.max_delta * a[:, :3]
-        if r.active:
-            rand = state.info["physics"]
-            delta = delta * rand["action_scale"]
-            if r.moves_base:  # the arms' targets live in their nominal frames
-                target = randomize.to_nominal(jnp, self._rand_index, rand["params"], target)
-        target = jnp.clip(target + delta, self._ws_low, self._ws_high)
-        if r.moves_base:
-            target = randomize.to_true(jnp, self._rand_index, rand["params"], target)
-        ctrl = self._finger_ctrl(a[:, 3])
-        params = self._physics_params(state.info) if r.active else None
+    def move_targets(self, target, delta):
+        """The Cartesian targets [2, 3] moved by ``delta`` [2, 3] metres, clipped to the
+        workspace boxes."""
+        return jnp.clip(target + delta, self._ws_low, self._ws_high)
+
+    def advance(self, state: State, target, finger_cmd, params=None) -> State:
+        """One control step towards the true Cartesian ``target`` [2, 3] with finger commands
+        [2] (``params`` as in `launch`)."""
+        ctrl = self._finger_ctrl(finger_cmd)
         data = self.backend.step(state.data, ctrl, target, params)
         step = state.info["step"] + 1
         obs, reward, metrics, info = self._observe(data, state.obs["desired_goal"], step)
-        if r.active:
-            info = dict(info, physics=rand)
-            obs = self._believed(obs, info)
-        if p.active:
-            key, k_obs = jax.random.split(carry["key"])
-            if p.observes:
-                seen, carry = perturb.observe(jnp, SAMPLER, k_obs, p, carry, obs["observation"])
-                obs = dict(obs, observation=seen)
-            info = dict(info, perturb=dict(carry, key=key))
-        if self.action_history:
-            hist = obs_lib.push_action(jnp, state.info["action_history"], chosen)
-            obs = dict(obs, observation=obs_lib.with_action_history(jnp, obs["observation"], hist))
-            info = dict(info, action_history=hist)
         done = (step >= self.episode_length).astype(jnp.float32)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
+    # -- API --------------------------------------------------------------------------------------
+
+    def reset(self, key) -> State:
+        goal, qpos = self.rules.reset(jnp, SAMPLER, key)
+        qpos, qvel, mocap, _ = self.start_state(key, qpos)
+        return self.launch(goal, qpos, qvel, mocap)
+
+    def step(self, state: State, action) -> State:
+        a = clip_action(action)
+        target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
+        target = self.move_targets(target, self.config.max_delta * a[:, :3])
+        return self.advance(state, target, a[:, 3])
+
     def render(self, state: State, width: int = 640, height: int = 480, camera=None):
         """RGB frame [H, W, 3] of an unbatched state (host side, C engine's renderer)."""
-        from mjx_envs.render import render_state
+        from mjx_envs.render import render_state  # lazy: it sets MUJOCO_GL for rendering only
 
         return render_state(self, state, width=width, height=height, camera=camera)
 

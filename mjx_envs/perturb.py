@@ -38,6 +38,7 @@ import dataclasses
 import numpy as np
 
 from mjx_envs.observation import OBS_SIZE, obs_layout
+from mjx_envs.settings import ObjectTaskConfig
 
 FIELDS = ("obs_noise", "obs_dropout", "obs_bias", "obs_period", "latency")
 """the task fields of this module (all 0 = off), besides the mode ``perturb_exact``"""
@@ -46,6 +47,10 @@ OBJECT_FIELDS = ("object_pos", "object_rot", "object_velp", "object_velr")
 """held at their last value under dropout"""
 
 ACTION_SIZE = 8
+
+STREAM = 0x5E750
+"""the perturbations' own PRNG stream (``fold_in`` of the trainer's reset key, second seed word
+of the robot client's generator): the task's draws stay those of the unperturbed env"""
 
 _SLICES = obs_layout()
 
@@ -64,8 +69,6 @@ class Perturbation:
 
     @classmethod
     def from_config(cls, cfg) -> Perturbation:
-        from mjx_envs.settings import ObjectTaskConfig
-
         vals = {name: getattr(cfg, name, 0) for name in FIELDS}
         return cls(**vals, exact=bool(getattr(cfg, "perturb_exact", False)),
                    has_object=isinstance(cfg, ObjectTaskConfig))

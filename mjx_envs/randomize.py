@@ -55,12 +55,16 @@ import dataclasses
 
 import numpy as np
 
+from mjx_envs.observation import obs_layout
 from mjx_envs.rules import yaw_quat
 from mjx_envs.settings import RANDOMIZATION_FIELDS as FIELDS
 
 OBJECT_FIELDS = FIELDS[:4]
 
 NUM_ARMS = 2
+STREAM = 0x9A7D0
+"""``fold_in`` constant of the randomization's draws from the reset key (`mjx_envs.wrappers.
+Randomize`): the task's draws stay those of the nominal env"""
 PARAMS = 13
 """length of one env's parameter vector: mass scale, size delta, friction scale, table delta,
 finger scale, base offsets [2, 3], base yaws [2] (radians)"""
@@ -305,8 +309,6 @@ def believed_obs(xp, ix: ModelIndex, params, obs):
     nominal frame (what the arm believes); in object tasks the object's position and velocity
     relative to the gripper (object_rel_pos, object_velp) follow the believed gripper (reach
     keeps its zero object terms)."""
-    from mjx_envs.observation import obs_layout
-
     sl = obs_layout()
 
     def field(name):

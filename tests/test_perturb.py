@@ -16,7 +16,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import acting
-from mjx_envs import perturb, rules, settings
+from mjx_envs import perturb, rules, settings, wrappers
 from mjx_envs.observation import obs_layout
 
 L = obs_layout()
@@ -278,7 +278,7 @@ def test_robot_client_perturbations_match_the_trainer(tmp_path, history):
     np.testing.assert_allclose(np_env._result().achieved_goal, np.asarray(s.obs["achieved_goal"]),
                                atol=1e-4)
     # and without the perturbation the episode ends elsewhere
-    assert env.perturbation.active
+    assert wrappers.find(env, wrappers.Perturb).perturbation.active
 
 
 LEGACY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "legacy_reach", "run")
@@ -339,7 +339,7 @@ def test_eval_env_drops_training_perturbations():
 
     cfg = build_config("push").replace(physics="c")
     ev = make_eval_env(cfg, {"obs_noise": 0.01, "latency": 2})
-    assert not ev.perturbation.active
+    assert wrappers.find(ev, wrappers.Perturb) is None
     assert make_eval_env(cfg, {}) is None
     # rules' samplers both draw normals
     assert rules.NumpySampler.normal(np.random.default_rng(0), (3,)).dtype == np.float32

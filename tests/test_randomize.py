@@ -11,7 +11,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import acting
-from mjx_envs import randomize, rules, settings
+from mjx_envs import randomize, rules, settings, wrappers
 from mjx_envs.observation import obs_layout
 
 L = obs_layout()
@@ -146,7 +146,7 @@ def test_action_scale_scales_the_step_and_nothing_else():
     np.testing.assert_allclose(m_new, 1.5 * m_nom, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(m_nom[..., 0], 0.05 * 0.5, rtol=1e-5)
     np.testing.assert_array_equal(s0.obs["observation"], n0.obs["observation"])
-    assert not env.randomization.physical and env.backend.rand is None
+    assert not env.randomization.physical and env.backend.rand is None  # action scale only
 
 
 def test_base_offset_and_yaw_move_the_arm_not_what_it_believes():
@@ -167,7 +167,7 @@ def test_base_offset_and_yaw_move_the_arm_not_what_it_believes():
         assert not np.any(tr.obs["observation"][..., slice(*L[name])]), name
     # the transform and its inverse agree
     p = s0.info["physics"]["params"][0]
-    ix = env._rand_index
+    ix = env.model_index
     x = np.asarray([[0.3, 0.1, 0.5], [0.2, -0.2, 0.45]], np.float32)
     np.testing.assert_allclose(randomize.to_nominal(np, ix, p, randomize.to_true(np, ix, p, x)),
                                x, atol=1e-6)
@@ -183,9 +183,9 @@ def test_training_draws_differ_between_envs_within_bounds_and_change_the_physics
     assert np.all(np.abs(p["table"]) <= 0.01) and len(set(np.round(p["table"], 6))) == N
     # the C engine's per-env models hold those values ...
     models = env.backend.models_for(s0.info["physics"]["params"])
-    masses = [m.body_mass[env._rand_index.body] for m in models]
+    masses = [m.body_mass[env.model_index.body] for m in models]
     np.testing.assert_allclose(masses, 0.5 * p["mass"], rtol=1e-5)
-    tables = [m.geom_pos[env._rand_index.table, 2] for m in models]
+    tables = [m.geom_pos[env.model_index.table, 2] for m in models]
     np.testing.assert_allclose(tables, 0.40 + p["table"], atol=1e-6)
     # ... and the objects come to rest at different heights
     z = tr.obs["achieved_goal"][-1][:, 0, 2]
@@ -223,7 +223,7 @@ def test_mjx_and_c_build_the_same_models_and_start_states():
     c_models = c.backend.models_for(params)
     for i in range(2):
         mx = jax.device_get(m.backend._model(jnp.asarray(params[i])))
-        for name in c._rand_index.fields():
+        for name in c.model_index.fields():
             np.testing.assert_allclose(np.asarray(getattr(mx, name)),
                                        getattr(c_models[i], name), rtol=1e-5, atol=1e-6,
                                        err_msg=name)
@@ -266,7 +266,7 @@ def test_eval_env_drops_training_randomization():
 
     cfg = build_config("push").replace(physics="c")
     ev = make_eval_env(cfg, {"object_mass": 0.3, "base_yaw": 3.0})
-    assert not ev.randomization.active
+    assert wrappers.find(ev, wrappers.Randomize) is None
 
 
 def test_cost_script_measures_off_and_on(tmp_path):
@@ -338,7 +338,7 @@ def test_c_engine_models_follow_every_new_draw():
         params = s.info["physics"]["params"]
         models = env.backend.models_for(params)
         for i in range(3):
-            for name, want in randomize.model_fields(np, env._rand_index, params[i]).items():
+            for name, want in randomize.model_fields(np, env.model_index, params[i]).items():
                 np.testing.assert_array_equal(getattr(models[i], name), want, err_msg=name)
         # rows that are not randomized keep the model's own float64 values
         np.testing.assert_array_equal(models[0].body_pos[1:], env.mj_model.body_pos[1:])

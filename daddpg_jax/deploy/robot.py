@@ -35,6 +35,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from daddpg_jax.deploy import ur3
+from mjx_envs import observation as obs_lib
+from mjx_envs import perturb, pipeline, rules
 from mjx_envs.settings import TaskConfig
 
 ARMS = ("l", "r")  # index 0 = left, 1 = right
@@ -42,8 +44,9 @@ _DEFAULTS = TaskConfig()
 CONTROL_PERIOD_S = _DEFAULTS.timestep * _DEFAULTS.n_substeps
 """Default env dt (``mjx_envs.settings``: timestep 0.01 s x 4 substeps, 0.04 s); the export
 stores the run's own value."""
-PERTURB_STREAM = 0x5E750
+PERTURB_STREAM = perturb.STREAM
 """second seed word of the robot client's perturbation draws"""
+SAMPLER = rules.NumpySampler()
 TOOL_DOWN_QUAT_WORLD = np.array([0.0, 0.70710678, 0.70710678, 0.0])
 """Fixed tool orientation of the simulator's targets (w, x, y, z), world frame (assets/*.xml)."""
 
@@ -371,13 +374,14 @@ def _limit_fingers(safety, ctrl, decision):
     return limited
 
 
-def _fresh(env, res, seen, step, pacer, pcarry):
+def _fresh(env, res, seen, step, pacer, pipe, carry):
     """(result, what the policy sees) at a period's start: a paced driver with ``observe()``
     (real arms, `daddpg_jax.deploy.arms.ArmsEnv`) is read again, so that the policy sees the
-    arms' current state rather than the one read right after the last command."""
-    if step and pacer is not None and pcarry is None and hasattr(env, "observe"):
+    arms' current state rather than the one read right after the last command (not under a
+    perturbation, whose observations are the pipeline's own)."""
+    if step and pacer is not None and not pipe.perturbs and hasattr(env, "observe"):
         res = env.observe()
-        return res, res.observation
+        return res, pipe.observe(carry, res.observation)[0]
     return res, seen
 
 
@@ -406,27 +410,20 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     policy sees and sends; the safety layer sees the true state. action_history: the policy's k
     (``mjx_envs.observation.with_action_history``; None = ``env.config``'s, 0 without one): the
     actions the service answered, before any latency; a held period counts as zero.
+    The observation pipeline is the trainer's (`mjx_envs.pipeline`, over NumPy).
     Returns the summary.
     """
-    from mjx_envs import observation as obs_lib
-
     if action_history is None:
         action_history = getattr(getattr(env, "config", None), "action_history", 0)
-    k_hist = int(action_history)
-    hist = obs_lib.empty_action_history(np, k_hist)
+    pipe = pipeline.Pipeline(pipeline.stages(np, SAMPLER, perturbation, action_history))
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
     res = env.reset(rng=rng, goal=goal)
     log = {} if log is None else log
     log.update(episode=episode, goal=np.asarray(res.desired_goal, float).tolist(),
                qpos=np.asarray(getattr(env, "_qpos", []), float).tolist(), steps=[])
-    seen, pcarry, sampler = res.observation, None, None
-    if perturbation is not None and perturbation.active:
-        from mjx_envs import perturb, rules
-
-        sampler = rules.NumpySampler()
-        perturb_rng = np.random.default_rng() if perturb_rng is None else perturb_rng
-        seen, pcarry = perturb.start(np, sampler, perturb_rng, perturbation, res.observation)
+    perturb_rng = np.random.default_rng() if perturb_rng is None else perturb_rng
+    seen, carry = pipe.start(perturb_rng, res.observation)
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
     stops, stale, rtts, errors, step_ms = 0, 0, [], [], []
     clear_min = res.arm_clearance
@@ -434,12 +431,11 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
         pacer.restart()
     for step in range(env.episode_length):
         tick = pacer.wait() if pacer is not None else clock()
-        res, seen = _fresh(env, res, seen, step, pacer, pcarry)
+        res, seen = _fresh(env, res, seen, step, pacer, pipe, carry)
         captured = getattr(res, "captured_at", None)
         captured = clock() if captured is None else float(captured)
-        asked = obs_lib.with_action_history(np, seen, hist) if k_hist else seen
         t0 = clock()
-        answer, info = client.act(asked, res.desired_goal)
+        answer, info = client.act(seen, res.desired_goal)
         t_answer = clock()
         rtt, age = t_answer - t0, t_answer - captured
         rtts.append(rtt * 1e3)
@@ -450,26 +446,19 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             errors.append(why)
             decision = safety.hold(env.target, reason=reason)
             stops += 1
-            chosen = np.zeros(2 * obs_lib.ARM_ACTION_SIZE, np.float32)
+            carry = pipe.hold(carry)
         else:
-            chosen = action
-            if pcarry is not None:
-                action, pcarry = perturb.delay(np, perturbation, pcarry, action)
+            action, carry = pipe.act(carry, action)
             proposed, ctrl = env.command_targets(action)
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
             ctrl = _limit_fingers(safety, ctrl, decision)
-        if k_hist:
-            hist = obs_lib.push_action(np, hist, chosen)
-        _log_step(log["steps"], tick, age, seen, res.desired_goal, answer, info, decision, ctrl,
-                  why)
+        _log_step(log["steps"], tick, age, seen[:, :obs_lib.OBS_SIZE], res.desired_goal, answer,
+                  info, decision, ctrl, why)
         res = env.step_targets(decision.target, ctrl)
         step_ms.append((clock() - tick) * 1e3)
         log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
-        seen = res.observation
-        if pcarry is not None and perturbation.observes:
-            seen, pcarry = perturb.observe(np, sampler, perturb_rng, perturbation, pcarry,
-                                           res.observation)
+        seen, carry = pipe.observe(carry, res.observation)
         clear_min = min(clear_min, res.arm_clearance)
         try:
             _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")

@@ -224,7 +224,6 @@ class CBackend:
         self._off = _state_offsets(model)
         self._ctrl_spec = int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS)
         self._dt = float(model.opt.timestep)
-        self.frozen_count = 0  # envs found frozen by the engine (host-side counter)
         # Fast path of _host_step: our own persistent pool called with skip_checks (no shape
         # inference, tiling or output allocation inside rollout) on inputs we lay out here.
         self._models: list = []
@@ -316,7 +315,6 @@ class CBackend:
         new_time = last[:, self._i_time]
         expected = time + self.n_substeps * self._dt
         ok = (np.abs(new_time - expected) < 0.5 * self._dt).astype(np.float32)
-        self.frozen_count += int(n - ok.sum())
         f32 = lambda a, k: a.astype(np.float32).reshape(lead + (k,))  # noqa: E731
         return (new_time.astype(np.float32).reshape(lead),
                 f32(last[:, self._sl_qpos], self.nq),

@@ -1,8 +1,9 @@
 """Grasped start states of the lifting tasks (Pick up, Pot) for ``grasp_start_fraction``.
 
-When a pickup or pot env is built with ``grasp_start_fraction > 0`` (a training-only field of
-`mjx_envs.settings.LiftTaskConfig`), `grasp_states` records ``n_grasp_states`` simulator states
-in which both grippers are closed on the object, once per process and task config (cached):
+A pickup or pot env with ``grasp_start_fraction > 0`` (a training-only field of
+`mjx_envs.settings.LiftTaskConfig`) asks `grasp_states` for them when its first reset is traced
+(building the env simulates nothing). It records ``n_grasp_states`` simulator states in which
+both grippers are closed on the object, once per process and task config (cached):
 
 1. a C-engine env of the same task and config with both training-only options off (the
    standard task, nominal physics) is reset with ``n_grasp_states + max(8, n_grasp_states // 4)``
@@ -21,8 +22,8 @@ in which both grippers are closed on the object, once per process and task confi
 Only the simulator states are kept (qpos, qvel and the two Cartesian targets), never the
 controller's actions. The env samples from them at reset (`mix`). The states are recorded with
 the C engine whatever engine the env uses (an MJX env starts from the same states; recording
-with MJX would compile a second MJX program). On the project's 2-core CPU the recording takes
-2-4 s per task at the default 64 states (80 tries of 30 control steps).
+with MJX would compile a second MJX program). At the default 64 states the recording plays 80
+tries of 30 control steps (its time: docs/TRAINING.md, "Training task distribution").
 """
 
 from __future__ import annotations
@@ -72,14 +73,16 @@ _CACHE: dict = {}
 def grasp_states(env_cls, config) -> GraspStates:
     """The grasped states of task ``env_cls.task_name`` under ``config`` (its training-only
     options do not matter: the standard task is recorded); recorded on first use, then cached
-    per process."""
+    per process. May be called while a reset is being traced: the recording runs eagerly
+    (``jax.ensure_compile_time_eval``), outside the traced program."""
     task = env_cls.task_name
     off = {name: type(getattr(config, name))(0) for name in settings.TRAINING_ONLY_FIELDS
            if hasattr(config, name)}   # nominal: no perturbation either
     base = settings.replace_config(config, **off)
     key = (task, base)
     if key not in _CACHE:
-        _CACHE[key] = _record(env_cls, base)
+        with jax.ensure_compile_time_eval():
+            _CACHE[key] = _record(env_cls, base)
     return _CACHE[key]
 
 
