@@ -105,7 +105,10 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
         res["error"] = str(e)
     cfg = LEARN
     seen = []
-    f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
+    class Hooks:
+        def cycle(self, m):
+            seen.append(int(m["cycle"]))
+    f = make_train_fns(env, cfg, hooks=Hooks())
     s = f.init()
     res["n_dev"] = f.num_devices
     res["buffer_sharded"] = str(s.buffer.data.obs.sharding.spec)

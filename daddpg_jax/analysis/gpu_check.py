@@ -43,6 +43,7 @@ import sys
 import threading
 import time
 import traceback
+from types import SimpleNamespace
 
 from mjx_envs.settings import TASKS
 
@@ -663,8 +664,8 @@ class _Stop(Exception):
 def stage_learn(args, rec: Recorder, task: str) -> None:
     """Stage 3 for one task: runner.train until the target or the stage's deadline; a record
     after every epoch (curve, time and env steps to the target, best success)."""
-    from daddpg_jax.analysis.levels import reaches
-    from daddpg_jax.running.runner import train
+    from daddpg_jax.running.levels import reaches
+    from daddpg_jax.running.runner import RunOptions, train
 
     t_process = PROCESS_START
     extra = dict(n_epochs=1, n_cycles=2) if args.smoke else {}
@@ -697,9 +698,11 @@ def stage_learn(args, rec: Recorder, task: str) -> None:
             raise _Stop
 
     try:
-        train(cfg, os.path.join(args.out, "runs", task), env_overrides=_env_overrides(args),
-              on_epoch=on_epoch, plot=False, force=True, command="gpu_check",
-              time_budget_s=max(1.0, args._deadline - time.time()))
+        train(cfg, RunOptions(os.path.join(args.out, "runs", task),
+                              env_overrides=_env_overrides(args),
+                              hooks=SimpleNamespace(epoch=on_epoch), force=True,
+                              command="gpu_check",
+                              time_budget_s=max(1.0, args._deadline - time.time())))
     except _Stop:
         pass
     except Exception as e:
