@@ -18,10 +18,13 @@ level.
 Counters are int32 (`cycles`, `updates`); env steps are cycles * num_envs * T, computed in
 Python by `TrainFns.env_steps` so they cannot overflow.
 
-Several devices (cfg.num_devices, 0 = all, of every process of a multi-process job): the cycle
-body runs under `shard_map` over a 1-d device mesh, data parallel over envs, replay shards and
-the update batch, and evaluation plays its episodes spread over the mesh (see
-daddpg_jax/algo/sharding.py). One device: the code path below without any mesh.
+Devices (cfg.num_devices, 0 = all, of every process of a multi-process job): the state lives on
+a 1-d device mesh (one device: a mesh of one), its replay storage sharded over the devices.
+On several devices the cycle body runs under `shard_map`, data parallel over envs, replay
+shards and the update batch, and evaluation plays its episodes spread over the mesh (see
+daddpg_jax/algo/sharding.py); on one device the same body runs without `shard_map`, which
+would change the last float32 bits of the results (docs/SCALING.md), so single-device results
+stay those of the plain program.
 
 `make_train_fns` assembles the pieces built below: `_setup` (static sizes, checks),
 `_acting_fns` (act, rollout, rollout_keys), `_normalizer_update`, `_init_fn`, `_updates_fn`
@@ -76,8 +79,8 @@ class TrainFns(NamedTuple):
     capacity: int             # buffer capacity in episodes (all devices together)
     horizon: int
     num_devices: int = 1      # devices the cycle is spread over
-    mesh: Any = None          # jax.sharding.Mesh when num_devices > 1
-    state_shardings: Any = None   # TrainState of NamedShardings when num_devices > 1
+    mesh: Any = None          # jax.sharding.Mesh of the num_devices devices
+    state_shardings: Any = None   # TrainState of NamedShardings over the mesh
 
 
 class _Setup(NamedTuple):
@@ -89,7 +92,7 @@ class _Setup(NamedTuple):
     info_keys: tuple
     capacity: int             # episodes, all devices together
     n_dev: int
-    mesh: Any                 # None on one device
+    mesh: Any                 # the 1-d device mesh (of one device on one)
     n_envs_local: int         # envs per device
     batch_local: int          # replay rows of an update batch per device
     demo_local: int           # demo rows of an update batch per device
@@ -106,8 +109,8 @@ class EpochHooks:
     - `cycle(metrics)`: once per cycle, with that cycle's metrics as NumPy arrays (unordered:
       a progress bar).
     - `stage(stage)`: when a cycle's rollout is done (ROLLOUT_DONE) and when its updates are done
-      (UPDATES_DONE), in program order (one device only: with several, not compiled), for a
-      split of the epoch's time (`StageClock`).
+      (UPDATES_DONE), in program order (on several devices: device 0's), for a split of the
+      epoch's time (`StageClock`).
     """
 
     cycle: Callable | None = None
@@ -131,7 +134,7 @@ def make_train_fns(env, cfg: TrainConfig, hooks: Any = None,
     """
     setup = _setup(env, cfg, demo_policy)
     on_cycle = getattr(hooks, "cycle", None)
-    on_stage = getattr(hooks, "stage", None) if setup.n_dev == 1 else None
+    on_stage = getattr(hooks, "stage", None)
     act, rollout, rollout_keys = _acting_fns(setup)
     update_normalizers = _normalizer_update(setup)
     init = _init_fn(setup, update_normalizers)
@@ -141,9 +144,10 @@ def make_train_fns(env, cfg: TrainConfig, hooks: Any = None,
         eval_rollout = _rollout_from(eval_rollout_keys)
     else:
         eval_rollout, eval_rollout_keys = rollout, rollout_keys
-    state_shardings = None
-    if setup.mesh is not None:
-        cycle, state_shardings = _sharded_cycle(setup, cycle, init)
+    state_shardings = shd.named_shardings(
+        setup.mesh, shd.train_state_specs(jax.eval_shape(init, jax.random.PRNGKey(0))))
+    if setup.n_dev > 1:
+        cycle = _sharded_cycle(setup, cycle, state_shardings)
 
     def train_cycle(state: TrainState, _):
         state, metrics = cycle(state)
@@ -154,12 +158,9 @@ def make_train_fns(env, cfg: TrainConfig, hooks: Any = None,
     def train_epoch(state: TrainState):
         return jax.lax.scan(train_cycle, state, None, length=cfg.n_cycles)
 
-    if setup.mesh is None:
-        epoch_jit = jax.jit(train_epoch, donate_argnums=0)
-    else:
-        rep_sh = jax.sharding.NamedSharding(setup.mesh, jax.sharding.PartitionSpec())
-        epoch_jit = jax.jit(train_epoch, donate_argnums=0, in_shardings=(state_shardings,),
-                            out_shardings=(state_shardings, rep_sh))
+    replicated = jax.sharding.NamedSharding(setup.mesh, jax.sharding.PartitionSpec())
+    epoch_jit = jax.jit(train_epoch, donate_argnums=0, in_shardings=(state_shardings,),
+                        out_shardings=(state_shardings, replicated))
 
     def env_steps(state: TrainState) -> int:
         return int(state.cycles) * cfg.num_envs * setup.horizon
@@ -182,11 +183,8 @@ def _setup(env, cfg: TrainConfig, demo_policy: Callable | None) -> _Setup:
     learner = losses.make_learner(cfg, env.reward_range)
     capacity = replay.capacity_episodes(cfg.buffer_size, T, cfg.num_envs)
     n_dev = shd.resolve_num_devices(cfg.num_devices)
-    mesh = None
-    if n_dev > 1:
-        shd.check_divisible(cfg.num_envs, cfg.batch_size, n_dev)
-        capacity = shd.sharded_capacity(capacity, n_dev)
-        mesh = shd.make_mesh(n_dev)
+    shd.check_divisible(cfg.num_envs, cfg.batch_size, n_dev)
+    capacity = shd.sharded_capacity(capacity, n_dev)
     if cfg.n_demos > 0:
         if demo_policy is None:
             # lazy: the trainer needs the env package's controllers only for this default
@@ -200,7 +198,8 @@ def _setup(env, cfg: TrainConfig, demo_policy: Callable | None) -> _Setup:
             raise ValueError(f"demo_batch ({cfg.demo_batch}) must be a multiple of the number of "
                              f"devices ({n_dev})")
     return _Setup(env=env, cfg=cfg, learner=learner, horizon=T, info_keys=tuple(env.info_keys),
-                  capacity=capacity, n_dev=n_dev, mesh=mesh, n_envs_local=cfg.num_envs // n_dev,
+                  capacity=capacity, n_dev=n_dev, mesh=shd.make_mesh(n_dev),
+                  n_envs_local=cfg.num_envs // n_dev,
                   batch_local=cfg.batch_size // n_dev, demo_local=cfg.demo_batch // n_dev,
                   demo_policy=demo_policy)
 
@@ -385,18 +384,21 @@ ROLLOUT_DONE, UPDATES_DONE = 0, 1
 """stages reported to `EpochHooks.stage`"""
 
 
-def _mark(on_stage: Callable | None, stage: int, after, then):
+def _mark(on_stage: Callable | None, stage: int, after, then, axis=None):
     """`then` unchanged, released only once the host call `on_stage(stage)` has run, which runs
     once `after` is computed: the call is ordered in the program between what computes `after`
-    and what uses `then` (an optimization barrier ties the callback's result to `then`)."""
+    and what uses `then` (an optimization barrier ties the callback's result to `then`). Under
+    shard_map (axis) every device makes the call and device 0's alone reaches `on_stage`."""
     if on_stage is None:
         return then
 
-    def call(_):
-        on_stage(stage)
+    def call(_, device):
+        if int(device) == 0:
+            on_stage(stage)
         return np.zeros((), np.int32)
 
-    done = io_callback(call, jax.ShapeDtypeStruct((), jnp.int32), after)
+    device = 0 if axis is None else jax.lax.axis_index(axis)
+    done = io_callback(call, jax.ShapeDtypeStruct((), jnp.int32), after, device)
     _, then = jax.lax.optimization_barrier((done, then))
     return then
 
@@ -413,14 +415,14 @@ def _cycle_fn(setup: _Setup, rollout, update_normalizers, updates,
             dev = jax.lax.axis_index(axis)
             k_roll, k_norm, k_upd = (jax.random.fold_in(k, dev) for k in (k_roll, k_norm, k_upd))
         episodes, tr = rollout(state, k_roll, setup.n_envs_local, explore=True)
-        k_upd = _mark(on_stage, ROLLOUT_DONE, episodes.obs[0, -1, 0, 0], k_upd)
+        k_upd = _mark(on_stage, ROLLOUT_DONE, episodes.obs[0, -1, 0, 0], k_upd, axis)
         buf = replay.insert(state.buffer, episodes)
         obs_norm, goal_norm = update_normalizers(state.obs_norm, state.goal_norm, k_norm,
                                                  episodes, axis)
         state = state.replace(buffer=buf, obs_norm=obs_norm, goal_norm=goal_norm)
         a_state, um = updates(state, k_upd, axis)
         key = _mark(on_stage, UPDATES_DONE, jax.tree.leaves(a_state.target_critic)[0].ravel()[0],
-                    key)
+                    key, axis)
         nonfinite = ~(jnp.all(jnp.isfinite(um["critic_loss"]))
                       & jnp.all(jnp.isfinite(um["actor_loss"])))
         state = state.replace(agent=a_state, key=key, cycles=state.cycles + 1,
@@ -435,12 +437,11 @@ def _cycle_fn(setup: _Setup, rollout, update_normalizers, updates,
     return cycle_body
 
 
-def _sharded_cycle(setup: _Setup, cycle_body, init):
-    """(cycle over the device mesh, TrainState of NamedShardings): `cycle_body` under
-    shard_map, each device on its envs, its replay shard and its slice of the batch."""
+def _sharded_cycle(setup: _Setup, cycle_body, state_shardings):
+    """The cycle over the device mesh: `cycle_body` under shard_map, each device on its envs,
+    its replay shard and its slice of the batch."""
     n_dev = setup.n_dev
-    state_specs = shd.train_state_specs(jax.eval_shape(init, jax.random.PRNGKey(0)))
-    state_shardings = shd.named_shardings(setup.mesh, state_specs)
+    state_specs = jax.tree.map(lambda sh: sh.spec, state_shardings)
 
     def local_cycle(state: TrainState):
         # global ring index/size -> this device's (every device inserts n_envs_local)
@@ -460,19 +461,19 @@ def _sharded_cycle(setup: _Setup, cycle_body, init):
     cycle = shd.shard_map(local_cycle, setup.mesh, in_specs=(state_specs,),
                           out_specs=(state_specs, jax.sharding.PartitionSpec()),
                           check_vma=False)
-    return cycle, state_shardings
+    return cycle
 
 
 def _evaluate_fn(setup: _Setup, rollout, rollout_keys, chunk: int | None = None):
     cfg = setup.cfg
-    if chunk is not None and setup.mesh is None and cfg.n_test_episodes > chunk:
+    if chunk is not None and setup.n_dev == 1 and cfg.n_test_episodes > chunk:
         return _chunked_evaluate(setup, rollout_keys, chunk)
 
     def evaluate_impl(state: TrainState, key):
         episodes, tr = rollout(state, key, cfg.n_test_episodes, explore=False)
         return _rollout_metrics(episodes, tr)
 
-    impl = evaluate_impl if setup.mesh is None else _sharded_evaluate(setup, rollout_keys)
+    impl = evaluate_impl if setup.n_dev == 1 else _sharded_evaluate(setup, rollout_keys)
     evaluate_jit = jax.jit(impl)
 
     def evaluate(state: TrainState, key=None):
@@ -538,8 +539,8 @@ def _sharded_evaluate(setup: _Setup, rollout_keys):
     return evaluate_impl
 
 
-def _init_wrapper(init_fn, cfg, shardings=None):
-    init_jit = jax.jit(init_fn) if shardings is None else jax.jit(init_fn, out_shardings=shardings)
+def _init_wrapper(init_fn, cfg, shardings):
+    init_jit = jax.jit(init_fn, out_shardings=shardings)
 
     def init(key=None):
         if key is None:

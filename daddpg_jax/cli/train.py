@@ -376,6 +376,7 @@ def main(argv=None):
 
 def _run(args, layout, cfg, env_over, run_dir, loggers) -> int:
     """Trains with the resolved flags; the exit code."""
+    # lazy: --help and argument errors stay JAX-free
     from daddpg_jax.analysis import evaluation, plotting
     from daddpg_jax.running import runner
     from daddpg_jax.running.distributed import DistributedError

@@ -61,12 +61,16 @@ METRIC_COLUMNS = (
 )
 """Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
 rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
-rollout_time, update_time and eval_time split the epoch's seconds: the rollouts, the updates
-(with buffer insert and normalizer update), and the evaluation after the epoch (rollout and
-update times are NaN on several devices). train_/test_physics_fault_rate: the fraction of the
-epoch's training / test episodes with a step whose ``metrics["physics_ok"]`` is 0 (the engine
-froze or diverged; NaN for an env that does not report it). CSVs written before a column
-existed lack it and are rewritten with it (blank) on --resume."""
+rollout_time, update_time and eval_time split the epoch's wall seconds, measured on the host:
+rollout_time sums, over the epoch's cycles, the time from the previous cycle's end to the
+cycle's rollout done (envs and actors); update_time the time from there to its updates done
+(buffer insert, normalizer update, gradient updates). Both come from host calls ordered inside
+the compiled cycle (``algo.train.StageClock``; on several devices, device 0's); the first
+epoch's rollout_time holds the compilation. eval_time: the evaluation after the epoch.
+train_/test_physics_fault_rate: the fraction of the epoch's training / test episodes with a
+step whose ``metrics["physics_ok"]`` is 0 (the engine froze or diverged; NaN for an env that
+does not report it). CSVs written before a column existed lack it and are rewritten with it
+(blank) on --resume."""
 
 PHYSICS_FAULT_WARN = 0.01
 """an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
@@ -342,8 +346,7 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     try:
         if on_start is not None and dist.is_primary():
             on_start(epoch)
-        run = _Run(cfg, opts, env, eval_env or env, fns, clock if fns.num_devices == 1 else None,
-                   log, trackers)
+        run = _Run(cfg, opts, env, eval_env or env, fns, clock, log, trackers)
         state, stopped = run.epochs(state)
     finally:
         for t in trackers:
@@ -363,13 +366,13 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
 @dataclass
 class _Run:
     """The loop of epochs of a run whose state is built: training env, test env, compiled
-    functions, stage clock (None on several devices), what was written, the trackers."""
+    functions, the stage clock compiled into them, what was written, the trackers."""
     cfg: TrainConfig
     opts: RunOptions
     env: Any
     eval_env: Any
     fns: Any
-    clock: StageClock | None
+    clock: StageClock
     log: _Log
     trackers: list
 
@@ -406,8 +409,7 @@ class _Run:
         perf_counter clock (earlier epochs included)."""
         fns, clock = self.fns, self.clock
         t0 = time.perf_counter()
-        if clock is not None:
-            clock.start()
+        clock.start()
         state, m = fns.train_epoch(state)
         m = jax.device_get(m)
         epoch_s = time.perf_counter() - t0
@@ -418,8 +420,7 @@ class _Run:
         row = _epoch_row(self.cfg, self.env, epoch + 1, fns.env_steps(state),
                          int(state.updates), round(time.perf_counter() - t_zero, 3), ev, m,
                          epoch_s)
-        row.update(rollout_time=clock.rollout_s if clock else math.nan,
-                   update_time=clock.update_s if clock else math.nan,
+        row.update(rollout_time=clock.rollout_s, update_time=clock.update_s,
                    eval_time=time.perf_counter() - t_eval)
         return state, row
 
@@ -445,7 +446,7 @@ def check_memory(fns, cfg: TrainConfig) -> None:
     optimizer moments; sizes from shapes, nothing allocated) cannot fit in memory."""
     shapes = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
     nbytes = resources.tree_bytes(shapes)
-    if fns.num_devices > 1 and jax.devices()[0].platform != "cpu":
+    if jax.devices()[0].platform != "cpu":
         nbytes //= fns.num_devices   # the replay is sharded over the accelerators' memories
     resources.check_fits(
         f"the training state (buffer_size={cfg.buffer_size:,} transitions, "
