@@ -41,6 +41,7 @@ def shard_map(f, mesh: Mesh, in_specs, out_specs, check_vma: bool = True):
     if hasattr(jax, "shard_map"):
         return jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs,
                              check_vma=check_vma)
+    # lazy: only old jax (< 0.7) has it here
     from jax.experimental.shard_map import shard_map as _sm  # pragma: no cover (old jax)
 
     return _sm(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_rep=check_vma)
