@@ -1,7 +1,7 @@
 """Shared test setup: CPU only, persistent compilation cache, and the helpers the test modules
 share (`from tests.conftest import ...`): the tiny training config `TINY` on the toy env's
-episodes of `T` steps, `tree_equal`, and `random_batch` (an update batch of HIDDEN-sized
-networks' inputs)."""
+episodes of `T` steps, `tree_equal`, `run_options`, and `random_batch` (an update batch of
+HIDDEN-sized networks' inputs)."""
 
 import os
 
@@ -43,6 +43,16 @@ def tree_equal(a, b) -> bool:
     return (jax.tree.structure(a) == jax.tree.structure(b) and len(la) == len(lb)
             and all(np.array_equal(np.asarray(x), np.asarray(y))
                     for x, y in zip(la, lb, strict=True)))
+
+
+def run_options(run_dir, env=None, **kw):
+    """`runner.RunOptions` for `run_dir`, training on `env` (e.g. the toy env) instead of the
+    task's env when given (``RunOptions.make_env``); other fields as keywords."""
+    # lazy: the runner (and the env package) load only in the test modules that train
+    from daddpg_jax.running.runner import RunOptions
+
+    make_env = None if env is None else (lambda cfg, overrides: env)
+    return RunOptions(str(run_dir), make_env=make_env, **kw)
 
 
 def random_batch(key, n_agents, b=B):

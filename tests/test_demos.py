@@ -14,7 +14,7 @@ from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
 from tests import toy_env
-from tests.conftest import HIDDEN, OBS, TINY, T, random_batch, tree_equal
+from tests.conftest import HIDDEN, OBS, TINY, T, random_batch, run_options, tree_equal
 
 N_DEMOS = 6
 DEMO = TINY.replace(n_demos=N_DEMOS, demo_batch=16)
@@ -187,6 +187,6 @@ def test_runner_logs_bc_columns(env, tmp_path):
 
     from daddpg_jax.running.runner import train
 
-    train(DEMO.replace(n_epochs=1), str(tmp_path), env=env, plot=False, demo_policy=toy_demo_policy)
+    train(DEMO.replace(n_epochs=1), run_options(str(tmp_path), env, demo_policy=toy_demo_policy))
     row = next(csv.DictReader(open(tmp_path / "metrics.csv")))
     assert float(row["bc_loss"]) >= 0 and 0 <= float(row["q_filter_pass"]) <= 1

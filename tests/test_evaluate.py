@@ -13,7 +13,7 @@ from daddpg_jax.analysis import evaluation
 from daddpg_jax.cli import evaluate as evaluate_cli
 from daddpg_jax.running.runner import train
 from tests import conftest
-from tests.conftest import call_main
+from tests.conftest import call_main, run_options
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 N_TEST = 12
@@ -25,7 +25,7 @@ TINY = conftest.TINY.replace(task="reach", physics="c", num_envs=2, n_cycles=2, 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     d = str(tmp_path_factory.mktemp("eval") / "reach_tiny")
-    train(TINY, d, plot=False)
+    train(TINY, run_options(d))
     return d
 
 

@@ -104,8 +104,13 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
     except ValueError as e:
         res["error"] = str(e)
     cfg = LEARN
-    seen = []
-    f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
+    seen, stages = [], []
+    class Hooks:
+        def cycle(self, m):
+            seen.append(int(m["cycle"]))
+        def stage(self, stage):
+            stages.append(int(stage))
+    f = make_train_fns(env, cfg, hooks=Hooks())
     s = f.init()
     res["n_dev"] = f.num_devices
     res["buffer_sharded"] = str(s.buffer.data.obs.sharding.spec)
@@ -121,7 +126,8 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
             ckpt.save(run, s, step=2, save_buffer=True)
             s2_copy = jax.tree.map(jnp.copy, s)
     jax.effects_barrier()
-    res.update(rates=rates, finite=finite, seen=len(seen),
+    res.update(rates=rates, finite=finite, seen=len(seen), stages=stages[:4],
+               n_stages=len(stages),
                buffer_episodes=int(m["buffer_episodes"][-1]),
                norm_count=float(s.obs_norm.count), updates=int(s.updates))
     # the pmean-ed updates keep every replicated value identical on both devices
@@ -142,6 +148,8 @@ def test_two_device_toy_training_learns_and_resumes(tmp_path):
     assert out["n_dev"] == 2 and "dev" in out["buffer_sharded"]
     assert out["finite"]
     assert out["seen"] == 60                              # progress once per cycle, not per device
+    assert out["stages"] == [0, 1, 0, 1]                  # timing marks: device 0's, in order
+    assert out["n_stages"] == 2 * 60                      # two marks per cycle
     assert out["buffer_episodes"] == 4 * 60 and out["norm_count"] == 4 * 60 * 10
     assert out["updates"] == 6 * 10 * 20
     rates = out["rates"]

@@ -32,7 +32,7 @@ from daddpg_jax.running.runner import (
 )
 from mjx_envs.schema import ConfigError
 from tests import conftest, toy_env
-from tests.conftest import T, tree_equal
+from tests.conftest import T, run_options, tree_equal
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUN_PY = os.path.join(ROOT, "experiments", "run.py")
@@ -109,7 +109,7 @@ def test_used_out_directory_is_refused_unless_force(cli_run, tmp_path, capsys):
     # the library refuses too (no StepAlreadyExistsError traceback from orbax)
     cfg, _ = ckpt.load_config(run)
     with pytest.raises(RunDirError, match="already holds a run"):
-        train(cfg, run, plot=False)
+        train(cfg, run_options(run))
 
 
 # -- 2. checkpoint fallback, restart from epoch 0 --------------------------------------------
@@ -117,11 +117,11 @@ def test_used_out_directory_is_refused_unless_force(cli_run, tmp_path, capsys):
 @pytest.mark.e2e
 def test_resume_falls_back_past_an_unreadable_checkpoint(env, tmp_path, capfd):
     ref, run = str(tmp_path / "ref"), str(tmp_path / "run")
-    full = train(TINY.replace(n_epochs=4), ref, env=env, plot=False)
-    train(TINY.replace(n_epochs=3), run, env=env, plot=False)
+    full = train(TINY.replace(n_epochs=4), run_options(ref, env))
+    train(TINY.replace(n_epochs=3), run_options(run, env))
     bad = _truncate_a_data_file(run, 3)
     capfd.readouterr()
-    res = train(TINY.replace(n_epochs=4), run, env=env, plot=False, resume=True)
+    res = train(TINY.replace(n_epochs=4), run_options(run, env, resume=True))
     err = capfd.readouterr().err
     assert f"checkpoint 3 ({ckpt.step_dir(run, 3)}) cannot be read" in err
     assert "OUT_OF_RANGE" in err and "Traceback" not in err and "Exception ignored" not in err
@@ -148,14 +148,14 @@ def test_resume_with_no_readable_checkpoint_is_one_line(cli_run, tmp_path, capsy
 @pytest.mark.e2e
 def test_run_killed_in_its_first_epoch_restarts_from_epoch_0(env, tmp_path, capfd):
     ref, run = str(tmp_path / "ref"), str(tmp_path / "run")
-    train(TINY.replace(n_epochs=2), ref, env=env, plot=False)
-    train(TINY.replace(n_epochs=1), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=2), run_options(ref, env))
+    train(TINY.replace(n_epochs=1), run_options(run, env))
     # as if killed while writing checkpoint 1: its row written, the checkpoint not complete
     os.rename(ckpt.step_dir(run, 1), os.path.join(ckpt.checkpoint_dir(run),
                                                   "1.orbax-checkpoint-tmp-123"))
     shutil.rmtree(ckpt.checkpoint_dir(run, best=True))
     capfd.readouterr()
-    train(TINY.replace(n_epochs=2), run, env=env, plot=False, resume=True)
+    train(TINY.replace(n_epochs=2), run_options(run, env, resume=True))
     err = capfd.readouterr().err
     assert "no complete checkpoint" in err and "starting it again from epoch 0" in err
     assert _learning(_rows(run)) == _learning(_rows(ref))
@@ -165,7 +165,7 @@ def test_run_killed_in_its_first_epoch_restarts_from_epoch_0(env, tmp_path, capf
 def test_resume_of_a_directory_without_config_is_an_error(env, tmp_path):
     (tmp_path / "x").mkdir()
     with pytest.raises(RunDirError, match="no config.json"):
-        train(TINY, str(tmp_path / "x"), env=env, resume=True)
+        train(TINY, run_options(str(tmp_path / "x"), env, resume=True))
 
 
 # -- 3. metrics.csv --------------------------------------------------------------------------
@@ -173,12 +173,12 @@ def test_resume_of_a_directory_without_config_is_an_error(env, tmp_path):
 @pytest.mark.e2e
 def test_metrics_rows_beyond_the_checkpoint_and_torn_rows_are_dropped(env, tmp_path):
     ref, run = str(tmp_path / "ref"), str(tmp_path / "run")
-    train(TINY.replace(n_epochs=3), ref, env=env, plot=False)
-    train(TINY.replace(n_epochs=2), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=3), run_options(ref, env))
+    train(TINY.replace(n_epochs=2), run_options(run, env))
     path = os.path.join(run, "metrics.csv")
     with open(path, "a", newline="") as f:      # a row written, its checkpoint not; a torn row
         f.write("3,480,18,1.0,0.5" + ",0" * (len(METRIC_COLUMNS) - 5) + "\r\n4,640,2")
-    train(TINY.replace(n_epochs=3), run, env=env, plot=False, resume=True)
+    train(TINY.replace(n_epochs=3), run_options(run, env, resume=True))
     assert _learning(_rows(run)) == _learning(_rows(ref))
 
 
@@ -216,7 +216,7 @@ def _scripted_success(monkeypatch, table):
 
         return fns._replace(evaluate=evaluate)
 
-    monkeypatch.setattr(algo_train, "make_train_fns", make)
+    monkeypatch.setattr(runner, "make_train_fns", make)
 
 
 @pytest.mark.e2e
@@ -224,10 +224,10 @@ def test_best_checkpoint_is_kept_across_resumes(env, tmp_path, monkeypatch):
     _scripted_success(monkeypatch, [0.25, 0.75, 0.5, 0.75, 0.5])
     cfg = TINY.replace(keep_checkpoints=1)
     ref, run = str(tmp_path / "ref"), str(tmp_path / "run")
-    train(cfg.replace(n_epochs=5, keep_checkpoints=10), ref, env=env, plot=False)
-    train(cfg.replace(n_epochs=3), run, env=env, plot=False)
+    train(cfg.replace(n_epochs=5, keep_checkpoints=10), run_options(ref, env))
+    train(cfg.replace(n_epochs=3), run_options(run, env))
     assert ckpt.all_steps(run) == [3] and ckpt.all_steps(run, best=True) == [2]
-    train(cfg.replace(n_epochs=5), run, env=env, plot=False, resume=True)
+    train(cfg.replace(n_epochs=5), run_options(run, env, resume=True))
     assert ckpt.all_steps(run) == [5] and ckpt.all_steps(run, best=True) == [2]  # earliest tie
     template = algo_train.make_train_fns(env, cfg).init(jax.random.PRNGKey(0))
     best, step = ckpt.restore(run, template, best=True)
@@ -240,13 +240,13 @@ def test_best_checkpoint_is_kept_across_resumes(env, tmp_path, monkeypatch):
 def test_best_checkpoint_is_repaired_on_resume(env, tmp_path, monkeypatch, capfd):
     _scripted_success(monkeypatch, [0.25, 0.75, 0.5, 0.5])
     run = str(tmp_path / "run")
-    train(TINY.replace(n_epochs=3), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=3), run_options(run, env))
     # killed between checkpoint 2 and its copy to checkpoints_best, and a later best of an
     # abandoned epoch (beyond the checkpoint resumed from) plus a partial copy
     shutil.rmtree(ckpt.step_dir(run, 2, best=True))
     shutil.copytree(ckpt.step_dir(run, 3), ckpt.step_dir(run, 9, best=True))
     os.makedirs(os.path.join(ckpt.checkpoint_dir(run, best=True), ".copy-3"))
-    train(TINY.replace(n_epochs=4), run, env=env, plot=False, resume=True)
+    train(TINY.replace(n_epochs=4), run_options(run, env, resume=True))
     assert sorted(os.listdir(ckpt.checkpoint_dir(run, best=True))) == ["2"]
     assert "warning" not in capfd.readouterr().err
 
@@ -276,7 +276,8 @@ def test_export_best(cli_run, tmp_path, capsys):
 def test_nonfinite_loss_in_the_first_epoch_says_no_checkpoint(tmp_path):
     nan_env = toy_env.make(episode_length=T, contact_penalty=float("nan"))
     with pytest.raises(NonFiniteLoss) as e:
-        train(TINY.replace(n_epochs=1, save_buffer=False), str(tmp_path / "r"), env=nan_env)
+        train(TINY.replace(n_epochs=1, save_buffer=False),
+              run_options(str(tmp_path / "r"), nan_env))
     assert "No checkpoint was written" in str(e.value) and "None" not in str(e.value)
 
 
@@ -295,7 +296,7 @@ def test_physics_fault_rates_are_logged_and_warned(tmp_path, capfd):
     cfg = TINY.replace(n_epochs=2, save_buffer=False, n_test_episodes=32)
     faulty = toy_env.make(episode_length=T, fault_goal_x=-0.1)
     capfd.readouterr()
-    train(cfg, str(tmp_path / "f"), env=faulty, plot=False)
+    train(cfg, run_options(str(tmp_path / "f"), faulty))
     err = capfd.readouterr().err
     rows = _rows(str(tmp_path / "f"))
     want = _expected_fault_rate(faulty, cfg)
@@ -309,7 +310,7 @@ def test_physics_fault_rates_are_logged_and_warned(tmp_path, capfd):
     for e, rate in ((toy_env.make(episode_length=T, fault_goal_x=1.0), "0.0"),
                     (toy_env.make(episode_length=T), "nan")):
         run = str(tmp_path / rate)
-        train(cfg.replace(n_epochs=1), run, env=e, plot=False)
+        train(cfg.replace(n_epochs=1), run_options(run, e))
         assert _rows(run)[0]["test_physics_fault_rate"] == rate
         assert "physics faults" not in capfd.readouterr().err
 
@@ -341,7 +342,7 @@ def test_mjx_on_cpu_at_256_envs_is_refused_before_compiling(tmp_path):
     cfg = TINY.replace(task="reach", physics="mjx", num_envs=256)
     t0 = time.perf_counter()
     with pytest.raises(ConfigError, match="use --physics c"):
-        train(cfg, str(tmp_path / "m"), plot=False)
+        train(cfg, run_options(str(tmp_path / "m")))
     assert time.perf_counter() - t0 < 5 and not os.path.exists(tmp_path / "m")
     runner.check_physics_backend("mjx", 256, backend="gpu")   # accelerators: fine
     runner.check_physics_backend("c", 4096)
@@ -512,12 +513,12 @@ def test_a_run_directory_in_use_is_refused_with_one_line(env, tmp_path, capsys):
         line = _one_error_line(capsys.readouterr().err)
         assert e.value.code == 2 and "another process" in line
         with pytest.raises(ckpt.RunLockedError, match="another process"):
-            train(TINY.replace(n_epochs=1), run, env=env, plot=False)
+            train(TINY.replace(n_epochs=1), run_options(run, env))
         assert os.listdir(run) == [ckpt.LOCK_FILE]
     finally:
         os.close(fd)
     # released: a directory holding only the lock file counts as empty
-    assert train(TINY.replace(n_epochs=1), run, env=env, plot=False).epochs == 1
+    assert train(TINY.replace(n_epochs=1), run_options(run, env)).epochs == 1
 
 
 @pytest.mark.e2e
@@ -673,13 +674,13 @@ def test_planted_symlinks_are_never_written_through(env, tmp_path):
     victim = tmp_path / "victim"
     victim.write_text("keep")
     run = str(tmp_path / "run")
-    train(TINY.replace(n_epochs=1), run, env=env)
+    train(TINY.replace(n_epochs=1), run_options(run, env))
     planted = ["metrics.csv.tmp", "config.json.tmp", "learning_curve.tmp.png",
                "learning_curve.png.tmp"]
     for name in planted:
         os.symlink(victim, os.path.join(run, name))
     os.symlink(tmp_path, os.path.join(ckpt.checkpoint_dir(run, best=True), ".copy-2"))
-    train(TINY.replace(n_epochs=2), run, env=env, resume=True)
+    train(TINY.replace(n_epochs=2), run_options(run, env, resume=True))
     ckpt.save_config(run, TINY)
     assert victim.read_text() == "keep" and _epochs(run) == [1, 2]
     assert not [n for n in os.listdir(run) if n.startswith(".tmp-")]

@@ -580,11 +580,12 @@ def test_robot_client_aborts_when_service_hangs(tiny_served, fast_limits):
 @pytest.mark.slow
 def test_sim_to_sim_success_matches_trainer_eval(tmp_path):
     from daddpg_jax.running.runner import train
+    from tests.conftest import run_options
 
     n = 200
     cfg = TrainConfig(**{**preset("reach"), "n_epochs": 2}, seed=0, n_test_episodes=n, physics="c")
     run = str(tmp_path / "reach")
-    res = train(cfg, run, plot=False)
+    res = train(cfg, run_options(run))
     trainer = res.test_success_rate
     policy = NumpyPolicy.load(export_run(run, str(tmp_path / "reach.npz")))
     srv = PolicyServer(policy, port=0).start()

@@ -8,11 +8,12 @@ import sys
 
 import pytest
 
+from daddpg_jax.analysis.plotting import plot_learning_curve
 from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, RunDirError, train
 from tests import conftest, toy_env
-from tests.conftest import T, call_main
+from tests.conftest import T, call_main, run_options
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = conftest.TINY.replace(n_cycles=2, n_batches=3, n_test_episodes=8, seed=3,
@@ -37,7 +38,7 @@ def _learning_columns(rows):
 
 def test_epoch_time_is_split_into_rollout_update_and_evaluation(env, tmp_path):
     run = str(tmp_path / "t")
-    train(TINY.replace(n_epochs=2), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=2), run_options(run, env))
     rows = _rows(run)
     for r in rows:
         roll, upd, ev = (float(r[k]) for k in ("rollout_time", "update_time", "eval_time"))
@@ -50,7 +51,7 @@ def test_epoch_time_is_split_into_rollout_update_and_evaluation(env, tmp_path):
 
 def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
     a, b = str(tmp_path / "a"), str(tmp_path / "b")
-    full = train(TINY.replace(n_epochs=2), a, env=env)
+    full = train(TINY.replace(n_epochs=2), run_options(a, env, plot=plot_learning_curve))
     assert full.epochs == 2 and full.env_steps == 2 * TINY.n_cycles * TINY.num_envs * T
     for name in ("config.json", "metrics.csv", "learning_curve.png"):
         assert os.path.getsize(os.path.join(a, name)) > 0, name
@@ -61,8 +62,8 @@ def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
     assert list(rows[0].keys()) == list(METRIC_COLUMNS)
     assert [int(r["epoch"]) for r in rows] == [1, 2]
 
-    train(TINY.replace(n_epochs=1), b, env=env)
-    resumed = train(TINY.replace(n_epochs=2), b, env=env, resume=True)
+    train(TINY.replace(n_epochs=1), run_options(b, env))
+    resumed = train(TINY.replace(n_epochs=2), run_options(b, env, resume=True))
     assert resumed.epochs == 2
     assert _learning_columns(_rows(b)) == _learning_columns(rows)
 
@@ -72,14 +73,14 @@ def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
     """A run whose metrics.csv predates the bc_loss/q_filter_pass columns resumes; the CSV is
     rewritten with every current column (blank where the old rows had none)."""
     run = str(tmp_path / "old")
-    train(TINY.replace(n_epochs=1), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=1), run_options(run, env))
     old_cols = [c for c in METRIC_COLUMNS if c not in ("bc_loss", "q_filter_pass")]
     rows = _rows(run)
     with open(os.path.join(run, "metrics.csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=old_cols)
         w.writeheader()
         w.writerows({k: r[k] for k in old_cols} for r in rows)
-    train(TINY.replace(n_epochs=2), run, env=env, resume=True, plot=False)
+    train(TINY.replace(n_epochs=2), run_options(run, env, resume=True))
     new = _rows(run)
     assert list(new[0].keys()) == list(METRIC_COLUMNS)
     assert new[0]["bc_loss"] == "" and new[1]["bc_loss"] == "nan"
@@ -89,27 +90,27 @@ def test_resume_rewrites_a_metrics_csv_of_older_columns(env, tmp_path):
 @pytest.mark.e2e
 def test_stop_at_success_stops_after_the_first_epoch_at_the_rate(env, tmp_path):
     run = str(tmp_path / "stop")
-    res = train(TINY.replace(n_epochs=3), run, env=env, plot=False, stop_at_success=0.0)
+    res = train(TINY.replace(n_epochs=3), run_options(run, env, stop_at_success=0.0))
     assert res.epochs == 1 and [int(r["epoch"]) for r in _rows(run)] == [1]
-    never = train(TINY.replace(n_epochs=2), str(tmp_path / "never"), env=env, plot=False,
-                  stop_at_success=1.01)
+    never = train(TINY.replace(n_epochs=2),
+                  run_options(str(tmp_path / "never"), env, stop_at_success=1.01))
     assert never.epochs == 2
 
 
 def test_resume_without_a_run_fails_clearly(env, tmp_path):
     with pytest.raises(RunDirError, match="no config.json"):
-        train(TINY.replace(n_epochs=1), str(tmp_path / "empty"), env=env, resume=True)
+        train(TINY.replace(n_epochs=1), run_options(str(tmp_path / "empty"), env, resume=True))
 
 
 @pytest.mark.e2e
 def test_nonfinite_loss_stops_and_keeps_last_good_checkpoint(env, tmp_path):
     run = str(tmp_path / "nan")
-    train(TINY.replace(n_epochs=1, save_buffer=False), run, env=env)
+    train(TINY.replace(n_epochs=1, save_buffer=False), run_options(run, env))
     # the config rejects NaN settings: NaN rewards (an env whose penalty is NaN) make the
     # critic loss non-finite instead
     nan_env = toy_env.make(episode_length=T, contact_penalty=float("nan"))
     with pytest.raises(NonFiniteLoss, match="last good checkpoint"):
-        train(TINY.replace(n_epochs=2, save_buffer=False), run, env=nan_env, resume=True)
+        train(TINY.replace(n_epochs=2, save_buffer=False), run_options(run, nan_env, resume=True))
     assert ckpt.all_steps(run) == [1]
     assert [int(r["epoch"]) for r in _rows(run)] == [1]
 

@@ -15,14 +15,19 @@ import tomllib
 
 import pytest
 
+from daddpg_jax.analysis import evaluation
 from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import runner, tracking
+from daddpg_jax.running.progress import Progress, epoch_line
 from daddpg_jax.running.runner import METRIC_COLUMNS, train
 from tests import conftest, toy_env
-from tests.conftest import T
+from tests.conftest import T, run_options
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = conftest.TINY.replace(n_cycles=2, n_batches=3, n_test_episodes=8, seed=1)
+ROW = dict(epoch=3, env_steps=1200, test_success_rate=0.5, test_arm_contact_rate=0.0,
+           critic_loss=0.25, env_steps_per_s=900.0)
+"""the fields of a metrics.csv row that the epoch line shows"""
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +69,7 @@ def scalars(events) -> dict:
 def test_tensorboard_event_file_holds_every_column_and_the_config(env, tmp_path):
     """one toy run of 3 epochs (~10 s, mostly compiling), then the event file is read back."""
     run = str(tmp_path / "run")
-    res = train(TINY.replace(n_epochs=3), run, env=env, plot=False)
+    res = train(TINY.replace(n_epochs=3), run_options(run, env))
     assert res.stopped == "epochs" and res.summary().endswith("stopped: all 3 epochs done")
     events = read_events(os.path.join(run, tracking.TB_DIR))
     got = scalars(events)
@@ -90,13 +95,13 @@ def test_tensorboard_resume_continues_the_event_log(env, tmp_path):
     """two toy runs (~20 s, mostly compiling): a resume after a dropped epoch (its CSV row
     written, its checkpoint not) purges that epoch's events: each step once."""
     run = str(tmp_path / "run")
-    train(TINY.replace(n_epochs=2), run, env=env, plot=False)
+    train(TINY.replace(n_epochs=2), run_options(run, env))
     import shutil
 
     from daddpg_jax.running import checkpoint as ckpt
 
     shutil.rmtree(ckpt.step_dir(run, 2))          # as if killed while saving checkpoint 2
-    res = train(TINY.replace(n_epochs=3), run, env=env, plot=False, resume=True)
+    res = train(TINY.replace(n_epochs=3), run_options(run, env, resume=True))
     events = read_events(os.path.join(run, tracking.TB_DIR))
     purge = int(res.rows[0]["env_steps"]) + 1
     assert [ev.step for ev in events if ev.HasField("session_log")] == [purge]
@@ -124,8 +129,8 @@ def test_wandb_offline_logs_the_columns(env, tmp_path, monkeypatch):
             seen.update(dict(self.run.summary))
             super().close()
 
-    res = train(TINY.replace(n_epochs=2), run, env=env, plot=False,
-                loggers=[Recording(run, project="test")])
+    res = train(TINY.replace(n_epochs=2),
+                run_options(run, env, loggers=[Recording(run, project="test")]))
     assert {"test/success_rate", "losses/critic_loss", "time/rollout_time",
             "train/success_rate", "progress/epoch"} <= set(seen)
     assert seen["env_steps"] == int(res.rows[-1]["env_steps"])
@@ -150,8 +155,9 @@ def test_video_every_without_a_renderer_warns_once(env, tmp_path, capfd):
     """one toy run (~10 s, mostly compiling): the toy env has no MuJoCo scene to render: one
     warning, the run goes on."""
     runner._VIDEO_WARNED.clear()
-    res = train(TINY.replace(n_epochs=2), str(tmp_path / "run"), env=env, plot=False,
-                video_every=1, loggers=[])
+    res = train(TINY.replace(n_epochs=2),
+                run_options(str(tmp_path / "run"), env, video=evaluation.train_video,
+                            video_every=1, loggers=[]))
     err = capfd.readouterr().err
     assert res.epochs == 2 and err.count("--video-every: no video") == 1, err
     assert "Traceback" not in err
@@ -163,12 +169,10 @@ def test_video_every_without_a_renderer_warns_once(env, tmp_path, capfd):
 def test_why_a_run_stopped(env, tmp_path):
     """two toy runs (~20 s, mostly compiling): time budget, --stop-at-success (all epochs
     done: test_tensorboard_event_file_holds_every_column_and_the_config)."""
-    b = train(TINY.replace(n_epochs=5), str(tmp_path / "b"), env=env, plot=False,
-              time_budget_s=0.0)
+    b = train(TINY.replace(n_epochs=5), run_options(str(tmp_path / "b"), env, time_budget_s=0.0))
     assert (b.stopped, b.epochs) == ("time_budget", 1)
     assert "stopped: time budget of 0 s used" in b.summary()
-    c = train(TINY.replace(n_epochs=5), str(tmp_path / "c"), env=env, plot=False,
-              stop_at_success=0.0)
+    c = train(TINY.replace(n_epochs=5), run_options(str(tmp_path / "c"), env, stop_at_success=0.0))
     assert (c.stopped, c.epochs) == ("stop_at_success", 1)
     assert "test success reached 0 (--stop-at-success)" in c.summary()
 
@@ -176,13 +180,14 @@ def test_why_a_run_stopped(env, tmp_path):
 def test_progress_without_a_terminal_prints_plain_lines(capsys):
     """in-process, no training: the calls the trainer makes, stderr not a TTY."""
     cfg = TINY.replace(n_epochs=4)
-    p = train_cli.Progress(cfg, T, tty=False)
+    p = Progress(cfg, T, tty=False)
+    assert p.cycle is None                  # no per-cycle callback compiled without a terminal
     p.start(2)
-    p.cycle({"success": 0.5})
-    p.epoch({"epoch": 3}, "epoch    3  line")
+    p.epoch(ROW)
     p.close()
     out, err = capsys.readouterr()
-    assert out == "epoch    3  line\n"
+    assert out == epoch_line(ROW) + "\n"
+    assert out.startswith("epoch    3  env_steps      1,200  test_success 0.500")
     assert err.splitlines() == ["resuming from epoch 2 of 4",
                                 "compiling the training epoch (the first one takes longer)..."]
     assert "\r" not in err
@@ -191,17 +196,26 @@ def test_progress_without_a_terminal_prints_plain_lines(capsys):
 def test_progress_bar_counts_whole_cycles_from_the_resumed_position(capsys):
     """in-process, no training: a bar on a (pretended) terminal."""
     cfg = TINY.replace(n_epochs=4, n_cycles=5, n_batches=400)
-    p = train_cli.Progress(cfg, T, tty=True)
+    p = Progress(cfg, T, tty=True)
     p.start(2)
     assert p.bar.n == 10 and "compiling" in str(p.bar.postfix)
-    assert p.update_tick == 40
-    for _ in range(3):
-        p.updates(40)
-        assert p.bar.n == 10                      # update ticks never move the count
-    assert "updates 30% of cycle 11" in str(p.bar.postfix)
     p.cycle({"success": 0.25})
     assert p.bar.n == 11 and "compiling" not in str(p.bar.postfix)
+    p.epoch(ROW)
+    assert p.bar.n == 15
     p.close()
+    assert capsys.readouterr().out == epoch_line(ROW) + "\n"
+
+
+def test_progress_with_no_progress_prints_epoch_lines_only(capsys):
+    """in-process, no training: daddpg-train --no-progress (live=False), a resumed run."""
+    p = Progress(TINY.replace(n_epochs=4), T, live=False, tty=True)
+    assert p.cycle is None
+    p.start(2)
+    p.epoch(ROW)
+    p.close()
+    out, err = capsys.readouterr()
+    assert out == epoch_line(ROW) + "\n" and err == "resuming from epoch 2 of 4\n"
 
 
 def test_interrupt_says_why(tmp_path, monkeypatch, capsys):

@@ -1,6 +1,7 @@
 """Training loop on the toy env: determinism, compile count, checkpoints, progress, learning."""
 
 import os
+import time
 
 import jax
 import jax.numpy as jnp
@@ -8,7 +9,13 @@ import numpy as np
 import pytest
 
 from daddpg_jax.algo import replay, variants
-from daddpg_jax.algo.train import make_train_fns
+from daddpg_jax.algo.train import (
+    ROLLOUT_DONE,
+    UPDATES_DONE,
+    EpochHooks,
+    StageClock,
+    make_train_fns,
+)
 from daddpg_jax.running import checkpoint as ckpt
 from tests import toy_env
 from tests.conftest import LEARN, LEARN_ENV, TINY, T, tree_equal
@@ -130,14 +137,48 @@ def test_checkpoint_without_buffer_and_keep_last(fns, two_epochs, tmp_path):
     assert payload["host"]["cpu"] and payload["host"]["cores"] == os.cpu_count()
 
 
-def test_progress_callback_once_per_cycle(env):
-    seen = []
+class _Hooks(EpochHooks):
+    """Records every hook call."""
+
+    def __init__(self):
+        self.cycles, self.stages = [], []
+
+    def cycle(self, m):
+        self.cycles.append(int(m["cycle"]))
+
+    def stage(self, stage):
+        self.stages.append(int(stage))
+
+
+def test_hooks_per_cycle_and_stage_marks_leave_the_numbers_unchanged(env):
+    """The hooks' callbacks (per cycle; rollout/updates stage marks) run at their places, in
+    program order, and change no number. ~3 s."""
     cfg = TINY.replace(n_cycles=2)
-    f = make_train_fns(env, cfg, progress=lambda m: seen.append(int(m["cycle"])))
-    s, _ = f.train_epoch(f.init())
+    hooks = _Hooks()
+    f, plain = make_train_fns(env, cfg, hooks=hooks), make_train_fns(env, cfg)
+    s, m = f.train_epoch(f.init())
+    s0, m0 = plain.train_epoch(plain.init())
     jax.block_until_ready(s)
     jax.effects_barrier()
-    assert sorted(seen) == [1, 2]
+    assert sorted(hooks.cycles) == [1, 2]
+    assert hooks.stages == [ROLLOUT_DONE, UPDATES_DONE] * 2
+    assert tree_equal(s, s0) and tree_equal(m, m0)
+
+
+def test_stage_clock_splits_the_epoch_between_rollouts_and_updates(env):
+    """StageClock as the stage hook: both sums positive and within the epoch's seconds. ~2 s."""
+    clock = StageClock()
+    f = make_train_fns(env, TINY.replace(n_cycles=2), hooks=clock)
+    s = f.init()
+    s, _ = f.train_epoch(s)       # compiles
+    jax.block_until_ready(s)
+    t0 = time.perf_counter()
+    clock.start()
+    s, _ = f.train_epoch(s)
+    jax.block_until_ready(s)
+    epoch_s = time.perf_counter() - t0
+    assert 0 < clock.rollout_s and 0 < clock.update_s
+    assert clock.rollout_s + clock.update_s <= epoch_s
 
 
 def test_nonfinite_flag(fns):

@@ -17,7 +17,9 @@ axis ``AXIS``:
   Chan's formula), metrics are ``pmean``-ed, and each device draws its own randomness from
   ``fold_in(key, axis_index)``.
 
-n_dev == 1 uses the single-device code path unchanged (no mesh, no shard_map).
+n_dev == 1: the state lives on a mesh of one device (the same shardings, one shard each) and
+the cycle runs without shard_map, which on one device changes the rounding of the last bits
+(daddpg_jax/algo/train.py).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ def shard_map(f, mesh: Mesh, in_specs, out_specs, check_vma: bool = True):
     if hasattr(jax, "shard_map"):
         return jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs,
                              check_vma=check_vma)
+    # lazy: only old jax (< 0.7) has it here
     from jax.experimental.shard_map import shard_map as _sm  # pragma: no cover (old jax)
 
     return _sm(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_rep=check_vma)
@@ -96,10 +99,8 @@ def named_shardings(mesh: Mesh, specs):
     return jax.tree.map(lambda s: NamedSharding(mesh, s), specs, is_leaf=_is_spec)
 
 
-def is_multi_device(tree) -> bool:
-    """True when some array of ``tree`` is laid out over more than one device."""
-    for x in jax.tree.leaves(tree):
-        sh = getattr(x, "sharding", None)
-        if sh is not None and len(sh.device_set) > 1:
-            return True
-    return False
+def on_mesh(tree) -> bool:
+    """True when some array of ``tree`` is laid out on a mesh (a NamedSharding, as the trainer's
+    state is on any number of devices)."""
+    return any(isinstance(getattr(x, "sharding", None), NamedSharding)
+               for x in jax.tree.leaves(tree))

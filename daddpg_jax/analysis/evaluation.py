@@ -475,6 +475,11 @@ VIDEO_EPISODES = 2
 """test episodes in each --video-every video"""
 
 
+def train_video(env, fns, state, path: str):
+    """`epoch_video` of a run's current training state (``runner.RunOptions.video``)."""
+    return epoch_video(Policy("", int(state.cycles), fns.config, {}, env, fns, state), path)
+
+
 def epoch_video(policy: Policy, path: str, n_episodes: int = VIDEO_EPISODES,
                 width: int = 320, height: int = 240):
     """The first `n_episodes` test episodes of the run's evaluation seed, rendered to `path`

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from daddpg_jax.analysis.levels import first_reaching
+from daddpg_jax.running.levels import first_reaching
 
 #: per-run figures that ``group_summary`` averages over a group's runs
 SUMMARY_METRICS = ("final_test_success", "last_test_success", "best_test_success",

@@ -22,9 +22,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from daddpg_jax.algo.config import TrainConfig, preset, preset_env
-from daddpg_jax.analysis.levels import first_reaching
+from daddpg_jax.analysis.plotting import plot_learning_curve
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running.runner import train
+from daddpg_jax.running.levels import first_reaching
+from daddpg_jax.running.runner import RunOptions, train
 
 FINAL_COLUMNS = (
     "task", "label", "algo", "her", "seed", "epochs", "env_steps", "wall_time",
@@ -110,8 +111,10 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
     log(f"  {exp.label} seed {seed}: {'resuming' if resume else 'starting'} "
         f"({cfg.n_epochs} epochs max, {budget_s - used:.0f} s left)")
     env_overrides = {**preset_env(task), **(env_overrides or {})}
-    res = train(cfg, run_dir, env_overrides=env_overrides, resume=resume,
-                time_budget_s=max(budget_s - used, 1.0), command="reproduce.py")
+    res = train(cfg, RunOptions(run_dir, env_overrides=env_overrides, resume=resume,
+                                plot=plot_learning_curve,
+                                time_budget_s=max(budget_s - used, 1.0),
+                                command="reproduce.py"))
     log(f"  {res.summary()}")
     return res.rows
 

@@ -15,6 +15,7 @@ import tempfile
 import time
 
 from daddpg_jax.algo.config import build_config
+from daddpg_jax.analysis import plotting
 from daddpg_jax.running import runner, tracking
 from mjx_envs.settings import DEFAULT_TASK
 
@@ -42,7 +43,9 @@ def main(argv=None) -> int:
     walls = []
     for i, mode in enumerate(["none", "tb", "tb", "none"]):
         d = os.path.join(base, f"{mode}{i}")
-        r = runner.train(cfg, d, loggers=[Timed(d)] if mode == "tb" else [])
+        r = runner.train(cfg, runner.RunOptions(
+            d, loggers=[Timed(d)] if mode == "tb" else [],
+            plot=plotting.plot_learning_curve))
         walls.append(float(r.rows[-1]["wall_time"]) / epochs)
         print(f"{mode}: {steps_per_s(r.rows):.1f} env steps/s (epochs 2..{epochs}, wall clock)",
               flush=True)

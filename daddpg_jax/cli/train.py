@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 from daddpg_jax.algo.config import DEVICES, HER_MODES, PHYSICS, TrainConfig, guess_device
 from daddpg_jax.algo.resolve import field_help, resolve_config
@@ -173,98 +172,6 @@ def resolve(args, parser=None, check_out: bool = True):
     return cfg, env_over, run_dir
 
 
-class Progress:
-    """What a run shows while it trains. On a terminal (stderr a TTY): a bar of whole cycles
-    (train success, env steps/s, and in long cycles the share of the cycle's updates done)
-    that starts at the resumed position and reads "compiling" until the first cycle ends.
-    Elsewhere (a log file, a pipe): no bar; a "compiling" line, then one line per epoch."""
-
-    def __init__(self, cfg: TrainConfig, episode_length: int, show: bool = True,
-                 tty: bool | None = None):
-        from tqdm import tqdm
-
-        self.cfg = cfg
-        self.show = show
-        self.tty = sys.stderr.isatty() if tty is None else tty
-        # show=False (processes other than 0 of a multi-process job): the same callbacks are
-        # compiled into every process's program, and draw nothing
-        self.bar = tqdm(total=cfg.n_epochs * cfg.n_cycles, unit="cycle", dynamic_ncols=True,
-                        desc=f"{cfg.task}/{cfg.algo}", disable=not (show and self.tty),
-                        file=sys.stderr)
-        self.steps_per_cycle = cfg.num_envs * episode_length
-        self.update_tick = cfg.n_batches // 10 if cfg.n_batches >= 200 else 0
-        self.t_last = time.perf_counter()
-        self.updates_done = 0
-        self.compiling = False
-        self.t_compile = None
-        if self.tty:
-            self.bar.set_postfix_str("starting (env, networks)...", refresh=True)
-
-    def start(self, epoch: int):
-        """Before the first cycle: the resumed position, and the compiling phase."""
-        if not self.show:
-            return
-        if epoch > 0:
-            print(f"resuming from epoch {epoch} of {self.cfg.n_epochs}", file=sys.stderr,
-                  flush=True)
-        self.bar.n = epoch * self.cfg.n_cycles
-        self.bar.initial = self.bar.n   # rates count this process's cycles only
-        self.compiling = True
-        self.t_compile = time.perf_counter()
-        if self.tty:
-            self.bar.set_postfix_str("compiling...", refresh=True)
-        else:
-            print("compiling the training epoch (the first one takes longer)...",
-                  file=sys.stderr, flush=True)
-
-    def cycle(self, m):
-        now = time.perf_counter()
-        sps = self.steps_per_cycle / max(now - self.t_last, 1e-9)
-        self.t_last = now
-        if self.compiling:
-            self.compiling = False
-            sps_text = "-"   # the first cycle's time is mostly compilation
-        else:
-            sps_text = f"{sps:,.0f}"
-        self.updates_done = 0
-        self.bar.set_postfix(train_success=f"{float(m['success']):.2f}", steps_s=sps_text,
-                             refresh=False)
-        self.bar.update(1)
-
-    def updates(self, n):
-        self.updates_done += self.update_tick
-        share = min(self.updates_done / self.cfg.n_batches, 1.0)
-        self.bar.set_postfix_str(f"updates {share:.0%} of cycle {self.bar.n + 1}", refresh=True)
-
-    def epoch(self, row, msg):
-        self.bar.n = row["epoch"] * self.cfg.n_cycles
-        self.bar.refresh()
-        if self.tty:
-            self.bar.write(msg, file=sys.stdout)
-        elif self.show:
-            print(msg, flush=True)
-
-    def close(self):
-        self.bar.close()
-
-
-class _PlainProgress:
-    """Progress when stderr is not a terminal: the "compiling" and resume lines of Progress
-    and one plain line per epoch; no per-cycle output."""
-
-    def __init__(self, bar: Progress):
-        self.inner = bar
-        self.update_tick = 0
-        self.cycle = None
-
-    def start(self, epoch: int):
-        self.inner.start(epoch)
-
-    def epoch(self, row, msg):
-        print(msg, flush=True)
-
-    def close(self):
-        pass
 
 
 def _loggers(args, run_dir: str) -> list:
@@ -274,13 +181,6 @@ def _loggers(args, run_dir: str) -> list:
     if args.wandb:
         out.append(tracking.WandbLogger(run_dir, project=args.wandb))
     return out
-
-
-def _epoch_line(row) -> str:
-    return (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
-            f"test_success {row['test_success_rate']:.3f}  "
-            f"arm_contact {row['test_arm_contact_rate']:.3f}  "
-            f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
 
 
 def import_task_module(argv) -> None:
@@ -325,46 +225,33 @@ def main(argv=None):
 
 def _run(args, layout, cfg, env_over, run_dir, loggers) -> int:
     """Trains with the resolved flags; the exit code."""
+    # lazy: --help and argument errors stay JAX-free
+    from daddpg_jax.analysis import evaluation, plotting
+    from daddpg_jax.running import runner
     from daddpg_jax.running.distributed import DistributedError
+    from daddpg_jax.running.progress import Progress
     from daddpg_jax.running.runner import (
         CheckpointError,
         CheckpointSaveError,
         NonFiniteLoss,
         RunDirError,
-        train,
+        RunOptions,
     )
 
     primary = layout is None or layout.process_id == 0
     if primary:
         _print_header(cfg, run_dir)
     T = settings.task_config(cfg.task, **env_over).episode_length
-    bar = None if args.no_progress else Progress(cfg, T, show=primary)
-    if bar is not None and not bar.tty and layout is None:
-        # not a terminal: plain lines (on_start, on_epoch) and no per-cycle callbacks (in a
-        # multi-process job every process keeps the same callbacks: the programs must match)
-        bar.close()
-        bar = _PlainProgress(bar)
-
-    def on_epoch(row):
-        if bar is None:
-            print(_epoch_line(row), flush=True)
-        else:
-            bar.epoch(row, _epoch_line(row))
-
-    def on_start(epoch):
-        if bar is not None:
-            bar.start(epoch)
-        elif epoch > 0:
-            print(f"resuming from epoch {epoch} of {cfg.n_epochs}", file=sys.stderr, flush=True)
-
+    # every process of a multi-process job compiles the same per-cycle callback
+    bar = Progress(cfg, T, show=primary, live=not args.no_progress,
+                   same_program=layout is not None)
+    opts = RunOptions(run_dir, env_overrides=env_over, resume=bool(args.resume),
+                      force=args.force, hooks=bar, loggers=loggers,
+                      plot=plotting.plot_learning_curve, video=evaluation.train_video,
+                      video_every=args.video_every, time_budget_s=args.time_budget,
+                      stop_at_success=args.stop_at_success, command=" ".join(sys.argv))
     try:
-        res = train(cfg, run_dir, env_overrides=env_over, resume=bool(args.resume),
-                    progress=bar.cycle if bar else None, on_epoch=on_epoch,
-                    command=" ".join(sys.argv), time_budget_s=args.time_budget,
-                    stop_at_success=args.stop_at_success,
-                    update_progress=bar.updates if bar and bar.update_tick else None,
-                    update_tick=bar.update_tick if bar else 0, force=args.force,
-                    on_start=on_start, loggers=loggers, video_every=args.video_every)
+        res = runner.train(cfg, opts)
     except NonFiniteLoss as e:
         print(f"error: {e}", file=sys.stderr)
         return 3
@@ -385,8 +272,7 @@ def _run(args, layout, cfg, env_over, run_dir, loggers) -> int:
               f"resume with: daddpg-train --resume {run_dir})", file=sys.stderr)
         return 1
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if primary:
         print(res.summary())
     return 0

@@ -36,6 +36,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 from flax import serialization
 
+from daddpg_jax.algo.sharding import on_mesh
 from daddpg_jax.running.host import host_info
 from mjx_envs.settings import PHYSICS_VERSION, physics_version_note, recorded_physics_version
 
@@ -462,13 +463,11 @@ def restore(run_dir, template, step: int | None = None, restore_buffer: bool | N
     full = dict(out["state"])
     if restore_buffer:
         full["buffer"] = out["buffer"]
-    # Orbax returns arrays committed to a device while `init` returns uncommitted ones; jit keys
-    # its cache on that, so re-place the restored arrays uncommitted: no recompile on resume.
-    # A multi-device template (sharded replay, see daddpg_jax/algo/sharding.py) is committed to its
-    # NamedShardings already and orbax restores into exactly those: keep them as they are.
-    from daddpg_jax.algo.sharding import is_multi_device
-
-    if not is_multi_device(template):
+    # Orbax returns arrays committed to a device; jit keys its cache on that. The trainer's
+    # `init` lays its state out on the device mesh (NamedShardings, daddpg_jax/algo/sharding.py)
+    # and orbax restores into exactly those: keep them. Any other template's arrays are
+    # uncommitted: re-place the restored arrays uncommitted too.
+    if not on_mesh(template):
         full = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), full)
     if not restore_buffer:
         full["buffer"] = buffer

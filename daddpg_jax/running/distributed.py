@@ -15,7 +15,8 @@ A process that cannot join within ``timeout`` seconds exits with a one-line erro
 hanging (JAX itself would wait, then abort with a stack trace).
 
 Single process (no flags, no cluster of more than one): nothing here runs a collective, and
-every helper returns at once.
+every helper returns at once. The module imports JAX only inside its functions: daddpg-train
+imports it before parsing its flags, and --help stays JAX-free.
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ def join(coordinator: str | None = None, num_processes: int | None = None,
         if num_processes == 1:
             return None
         where = coordinator
-    import jax
+    import jax  # lazy: daddpg-train imports this module before JAX (JAX-free --help)
 
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     _initialize_or_exit(jax, coordinator, num_processes, process_id, timeout, where)
@@ -162,7 +163,7 @@ def _reachable(coordinator: str) -> bool:
 
 
 def current_layout() -> Layout:
-    import jax
+    import jax  # lazy: daddpg-train imports this module before JAX (JAX-free --help)
 
     counts = [0] * jax.process_count()
     for d in jax.devices():
@@ -172,14 +173,14 @@ def current_layout() -> Layout:
 
 
 def is_multiprocess() -> bool:
-    import jax
+    import jax  # lazy: daddpg-train imports this module before JAX (JAX-free --help)
 
     return jax.process_count() > 1
 
 
 def is_primary() -> bool:
     """Process 0 (or the only process): the one that writes the run's files and output."""
-    import jax
+    import jax  # lazy: daddpg-train imports this module before JAX (JAX-free --help)
 
     return jax.process_index() == 0
 
@@ -187,7 +188,7 @@ def is_primary() -> bool:
 def barrier(name: str) -> None:
     """Waits until every process has reached the barrier `name` (no-op on one process)."""
     if is_multiprocess():
-        from jax.experimental import multihost_utils
+        from jax.experimental import multihost_utils  # lazy: as `import jax` above
 
         multihost_utils.sync_global_devices(name)
 
@@ -196,7 +197,7 @@ def from_primary(value):
     """Process 0's value of a JSON-serializable `value` on every process (itself on one)."""
     if not is_multiprocess():
         return value
-    from jax.experimental import multihost_utils
+    from jax.experimental import multihost_utils  # lazy: as `import jax` above
 
     raw = json.dumps(value).encode() if is_primary() else b""
     if len(raw) > _MESSAGE_BYTES:
@@ -214,7 +215,7 @@ def gather_ints(values) -> np.ndarray:
     row = np.asarray(values, np.int64).reshape(1, -1)
     if not is_multiprocess():
         return row
-    from jax.experimental import multihost_utils
+    from jax.experimental import multihost_utils  # lazy: as `import jax` above
 
     return np.asarray(multihost_utils.process_allgather(row[0])).reshape(-1, row.shape[1])
 

@@ -1,9 +1,9 @@
 """What machine a run or a benchmark ran on (standard library only).
 
 A fixed seed trains deterministically on one host (tests/test_train.py), but XLA compiles for
-the CPU it runs on, so two CPU models (or a VM moved to another host type) may round
-differently: the same seed and config gave different curves from the first update on an AMD
-EPYC and an Intel Xeon VM (docs/RESULTS.md). config.json records the host for that reason.
+the CPU it runs on, so two CPU models may round differently (a measured case: docs/RESULTS.md,
+"Push trained with latency only, 30 minutes without the stop"). config.json records the host
+for that reason.
 """
 
 from __future__ import annotations

@@ -33,17 +33,22 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 from typing import Any
 
 import jax
 import numpy as np
 
+import mjx_envs
 from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig
-from daddpg_jax.analysis.levels import reaches
+from daddpg_jax.algo.train import StageClock, make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import distributed as dist
+from daddpg_jax.running import resources, tracking
+from daddpg_jax.running.levels import reaches
+from mjx_envs import settings
 from mjx_envs.physics.backends import default_chunk
 from mjx_envs.schema import ConfigError
 
@@ -56,12 +61,16 @@ METRIC_COLUMNS = (
 )
 """Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
 rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
-rollout_time, update_time and eval_time split the epoch's seconds: the rollouts, the updates
-(with buffer insert and normalizer update), and the evaluation after the epoch (rollout and
-update times are NaN on several devices). train_/test_physics_fault_rate: the fraction of the
-epoch's training / test episodes with a step whose ``metrics["physics_ok"]`` is 0 (the engine
-froze or diverged; NaN for an env that does not report it). CSVs written before a column
-existed lack it and are rewritten with it (blank) on --resume."""
+rollout_time, update_time and eval_time split the epoch's wall seconds, measured on the host:
+rollout_time sums, over the epoch's cycles, the time from the previous cycle's end to the
+cycle's rollout done (envs and actors); update_time the time from there to its updates done
+(buffer insert, normalizer update, gradient updates). Both come from host calls ordered inside
+the compiled cycle (``algo.train.StageClock``; on several devices, device 0's); the first
+epoch's rollout_time holds the compilation. eval_time: the evaluation after the epoch.
+train_/test_physics_fault_rate: the fraction of the epoch's training / test episodes with a
+step whose ``metrics["physics_ok"]`` is 0 (the engine froze or diverged; NaN for an env that
+does not report it). CSVs written before a column existed lack it and are rewritten with it
+(blank) on --resume."""
 
 PHYSICS_FAULT_WARN = 0.01
 """an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
@@ -153,8 +162,7 @@ def _success(row) -> float:
 
 
 def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
-    import mjx_envs
-
+    """The training env: ``mjx_envs.make`` of cfg.task with cfg.physics and the overrides."""
     return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
 
 
@@ -163,8 +171,6 @@ def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
     (mjx_envs.settings.test_overrides: goals at rest height, grasped-state starts), so that
     test success always measures the standard task. None when the overrides switch none of
     them on (the training env then serves both)."""
-    from mjx_envs import settings
-
     env_overrides = dict(env_overrides or {})
     test = settings.test_overrides(cfg.task)
     train_cfg = settings.task_config(cfg.task, **env_overrides)
@@ -228,102 +234,126 @@ class _Log:
         dist.barrier(f"daddpg-epoch-{epoch}")
 
 
-def train(cfg: TrainConfig, run_dir: str, env_overrides: dict | None = None,
-          resume: bool = False, progress: Callable[[dict], None] | None = None,
-          on_epoch: Callable[[dict], None] | None = None, plot: bool = True,
-          command: str | None = None, time_budget_s: float | None = None,
-          env: Any = None, update_progress: Callable[[int], None] | None = None,
-          update_tick: int = 0, demo_policy: Callable | None = None,
-          force: bool = False, stop_at_success: float | None = None,
-          on_start: Callable[[int], None] | None = None, loggers: list | None = None,
-          video_every: int = 0) -> RunResult:
-    """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run).
+@dataclass
+class RunOptions:
+    """How `train` runs a config: where, and what it reports. Every field but run_dir has a
+    default that a plain run uses."""
 
-    resume: continue the run in ``run_dir`` (see the module docstring); else ``run_dir`` must
-    hold no checkpoint (RunDirError) unless force=True, which deletes the run there first.
-    progress: host callback called once per cycle with that cycle's metrics (progress bar).
-    on_epoch: called with each epoch's CSV row after it is written.
-    time_budget_s: stop after the epoch during which this much wall time (this call) elapsed.
-    stop_at_success: stop after the first epoch whose test success rate is at least this
-    (within float32 rounding: 90 of 100 episodes reach 0.9).
-    on_start: called once with the epoch the run starts from (0, or the resumed checkpoint's)
-    before the first epoch compiles.
-    loggers: experiment trackers (``daddpg_jax.running.tracking``) fed the config and every
-    CSV row; None = TensorBoard event files in RUN_DIR/tensorboard; [] = none.
-    video_every: every this many epochs, an evaluation video into RUN_DIR/videos and the
-    loggers (0 = never; without a renderer, one warning and training goes on).
-    env: an env object to use instead of ``mjx_envs.make(cfg.task, ...)`` (tests).
-    update_progress / update_tick: host callback every ``update_tick`` updates within a cycle.
-    demo_policy: the demonstrations' controller when cfg.n_demos > 0 (default: the task's
-    scripted controller; see ``make_train_fns``).
+    run_dir: str
+    """the run directory (layout in the module docstring)"""
+    env_overrides: dict = field(default_factory=dict)
+    """env fields over the task's defaults (keywords of ``mjx_envs.make``); recorded in
+    config.json"""
+    resume: bool = False
+    """continue the run in run_dir (see the module docstring); else run_dir must hold no
+    checkpoint (RunDirError) unless force"""
+    force: bool = False
+    """delete the run in run_dir first"""
+    hooks: Any = None
+    """what the run reports while it trains (e.g. ``daddpg_jax.running.progress.Progress``), an
+    object with any of: ``start(epoch)`` (once, with the epoch the run starts from, before the
+    first epoch compiles), ``cycle(metrics)`` (once per cycle, from inside the compiled epoch:
+    ``algo.train.EpochHooks``), ``epoch(row)`` (each epoch's metrics.csv row after it is
+    written). start and epoch run on process 0 only; cycle is compiled into every process's
+    epoch"""
+    loggers: list | None = None
+    """experiment trackers (``daddpg_jax.running.tracking``) fed the config and every CSV row;
+    None = TensorBoard event files in RUN_DIR/tensorboard; [] = none"""
+    plot: Callable | None = None
+    """``plot(rows, path, title)``: draws learning_curve.png from the CSV rows after every epoch
+    (e.g. ``daddpg_jax.analysis.plotting.plot_learning_curve``); None = no plot"""
+    video: Callable | None = None
+    """``video(env, fns, state, path) -> (path written, frames, fps)``: a video of test episodes
+    of the current policy (e.g. ``daddpg_jax.analysis.evaluation.train_video``), every
+    video_every epochs"""
+    video_every: int = 0
+    """every this many epochs, a video into RUN_DIR/videos and the loggers (0 = never; when it
+    fails, e.g. without a renderer, one warning and training goes on)"""
+    time_budget_s: float | None = None
+    """stop after the epoch during which this much wall time (this call) elapsed"""
+    stop_at_success: float | None = None
+    """stop after the first epoch whose test success rate is at least this (within float32
+    rounding: 90 of 100 episodes reach 0.9)"""
+    command: str | None = None
+    """the command line, recorded in config.json"""
+    demo_policy: Callable | None = None
+    """the demonstrations' controller when cfg.n_demos > 0 (default: the task's scripted
+    controller; see ``algo.train.make_train_fns``)"""
+    make_env: Callable | None = None
+    """``make_env(cfg, env_overrides) -> env``: the training env, for an env that
+    ``mjx_envs.make`` does not build (e.g. a small test env or a wrapped task); it then serves
+    the test episodes too. None = `make_env` and `make_eval_env` of this module"""
+
+
+def train(cfg: TrainConfig, options: RunOptions) -> RunResult:
+    """Trains until ``cfg.n_epochs`` epochs are done (counting epochs of a resumed run), with
+    `options` (RunOptions: run directory, resume, hooks, loggers, stop rules, ...).
 
     In a multi-process job (daddpg_jax/running/distributed.py) every process calls this with
-    the same arguments (checked: DistributedError otherwise); process 0 alone prepares
-    run_dir, writes config.json, metrics.csv and the plot, and calls ``on_epoch``.
+    the same config and options (checked: DistributedError otherwise); process 0 alone
+    prepares run_dir, writes config.json, metrics.csv and the plot, and calls the hooks'
+    ``start`` and ``epoch``.
     """
-    env_overrides = dict(env_overrides or {})
-    dist.check_same_config(dict(config=cfg.to_dict(), env_overrides=env_overrides,
-                                run_dir=os.fspath(run_dir), resume=resume, force=force,
-                                time_budget_s=time_budget_s, stop_at_success=stop_at_success))
-    check_physics_backend(cfg.physics if env is None else getattr(env, "physics", None),
-                          cfg.num_envs)
-    dist.on_primary(_prepare_run_dir, run_dir, resume, force,
+    opts = replace(options, env_overrides=dict(options.env_overrides or {}))
+    dist.check_same_config(dict(config=cfg.to_dict(), env_overrides=opts.env_overrides,
+                                run_dir=os.fspath(opts.run_dir), resume=opts.resume,
+                                force=opts.force, time_budget_s=opts.time_budget_s,
+                                stop_at_success=opts.stop_at_success))
+    if opts.make_env is None:
+        check_physics_backend(cfg.physics, cfg.num_envs)
+    dist.on_primary(_prepare_run_dir, opts.run_dir, opts.resume, opts.force,
                     errors=(RunDirError, ValueError, OSError))
     try:
-        return _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, command,
-                      time_budget_s, env, update_progress, update_tick, demo_policy,
-                      stop_at_success, on_start, loggers, video_every)
+        return _train(cfg, opts)
     finally:
         if dist.is_primary():
-            ckpt.unlock_run_dir(run_dir)
+            ckpt.unlock_run_dir(opts.run_dir)
 
 
-def _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, command,
-           time_budget_s, env, update_progress, update_tick, demo_policy, stop_at_success,
-           on_start, loggers, video_every) -> RunResult:
+def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     """`train` once process 0 holds the run directory's lock."""
+    run_dir = opts.run_dir
     layout = dist.current_layout() if dist.is_multiprocess() else None
-    if resume:
+    if opts.resume:
         _check_resume_layout(run_dir, layout)
-    eval_env = None
-    if env is None:
-        env = make_env(cfg, env_overrides)
-        eval_env = make_eval_env(cfg, env_overrides)
-
-    from daddpg_jax.algo.train import StageClock, make_train_fns
-
+    if opts.make_env is None:
+        env = make_env(cfg, opts.env_overrides)
+        eval_env = make_eval_env(cfg, opts.env_overrides)
+    else:
+        env = opts.make_env(cfg, opts.env_overrides)
+        check_physics_backend(getattr(env, "physics", None), cfg.num_envs)
+        eval_env = None
     clock = StageClock()
-    fns = make_train_fns(env, cfg, progress=progress, update_progress=update_progress,
-                         update_tick=update_tick, demo_policy=demo_policy, clock=clock,
+    epoch_hooks = SimpleNamespace(cycle=getattr(opts.hooks, "cycle", None), stage=clock.stage)
+    fns = make_train_fns(env, cfg, hooks=epoch_hooks, demo_policy=opts.demo_policy,
                          eval_env=eval_env,
                          eval_chunk=default_chunk(getattr(env, "physics", cfg.physics)))
-    if fns.num_devices > 1:
-        clock = None
     check_memory(fns, cfg)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
-    if resume:
+    if opts.resume:
         state, log = _resume(run_dir, state)
     else:
         log = _Log(run_dir, [])
         if dist.is_primary():
             extra = {"distributed": layout.to_dict()} if layout is not None else {}
-            ckpt.save_config(run_dir, cfg, env_overrides=env_overrides,
+            ckpt.save_config(run_dir, cfg, env_overrides=opts.env_overrides,
                              env_config=_jsonable(dict(getattr(env.config, "__dict__", {}))),
-                             command=command, num_agents=variants.get(cfg.algo).num_agents,
+                             command=opts.command, num_agents=variants.get(cfg.algo).num_agents,
                              physics_resolved=getattr(env, "physics", None), **extra)
     epoch = log.epoch
-    trackers = _open_loggers(loggers, cfg, run_dir, env_overrides, log)
+    trackers = _open_loggers(opts.loggers, cfg, run_dir, opts.env_overrides, log)
+    on_start = getattr(opts.hooks, "start", None)
     try:
         if on_start is not None and dist.is_primary():
             on_start(epoch)
-        state, stopped = _epochs(cfg, env, fns, state, clock, log, run_dir, plot, on_epoch,
-                                 time_budget_s, stop_at_success, trackers, video_every,
-                                 eval_env)
+        run = _Run(cfg, opts, env, eval_env or env, fns, clock, log, trackers)
+        state, stopped = run.epochs(state)
     finally:
         for t in trackers:
             t.close()
-    why = STOP_REASONS[stopped].format(n_epochs=cfg.n_epochs, time_budget_s=time_budget_s or 0,
-                                       stop_at_success=stop_at_success or 0)
+    why = STOP_REASONS[stopped].format(n_epochs=cfg.n_epochs,
+                                       time_budget_s=opts.time_budget_s or 0,
+                                       stop_at_success=opts.stop_at_success or 0)
     if not log.rows:
         return RunResult(run_dir, epoch, fns.env_steps(state), log.wall_offset, math.nan, [],
                          stopped, why)
@@ -333,43 +363,90 @@ def _train(cfg, run_dir, env_overrides, resume, progress, on_epoch, plot, comman
                      stopped, why)
 
 
-def _epochs(cfg, env, fns, state, clock, log, run_dir, plot, on_epoch, time_budget_s,
-            stop_at_success, trackers, video_every, eval_env):
-    """The loop of epochs; returns (the last state, why it stopped: a key of STOP_REASONS)."""
-    t_start = time.perf_counter()
-    epoch = log.epoch
-    while epoch < cfg.n_epochs:
-        state, row = _train_epoch(cfg, env, fns, state, clock, epoch, run_dir,
-                                  t_start - log.wall_offset)
-        epoch += 1
-        log.commit(cfg, state, row)
-        if dist.is_primary():
-            _warn_physics_faults(row)
-            if plot:
-                _plot(cfg, run_dir, log.rows)
-            for t in trackers:
-                t.log_row(row)
-            if video_every and epoch % video_every == 0:
-                _epoch_video(cfg, eval_env or env, fns, state, run_dir, epoch,
-                             int(row["env_steps"]), trackers)
-            if on_epoch is not None:
-                on_epoch(row)
-        if time_budget_s is not None and dist.from_primary(
-                time.perf_counter() - t_start >= time_budget_s):
-            return state, "time_budget"
-        if stop_at_success is not None and reaches(_success(row), stop_at_success):
-            return state, "stop_at_success"
-    return state, "epochs"
+@dataclass
+class _Run:
+    """The loop of epochs of a run whose state is built: training env, test env, compiled
+    functions, the stage clock compiled into them, what was written, the trackers."""
+    cfg: TrainConfig
+    opts: RunOptions
+    env: Any
+    eval_env: Any
+    fns: Any
+    clock: StageClock
+    log: _Log
+    trackers: list
+
+    def epochs(self, state):
+        """Epochs until a stop rule; (the last state, why it stopped: a key of STOP_REASONS)."""
+        cfg, opts, log = self.cfg, self.opts, self.log
+        t_start = time.perf_counter()
+        epoch = log.epoch
+        on_epoch = getattr(opts.hooks, "epoch", None)
+        while epoch < cfg.n_epochs:
+            state, row = self.train_epoch(state, epoch, t_start - log.wall_offset)
+            epoch += 1
+            log.commit(cfg, state, row)
+            if dist.is_primary():
+                _warn_physics_faults(row)
+                if opts.plot is not None:
+                    _plot(opts.plot, cfg, log.run_dir, log.rows)
+                for t in self.trackers:
+                    t.log_row(row)
+                if opts.video is not None and opts.video_every and epoch % opts.video_every == 0:
+                    self.video(state, epoch, int(row["env_steps"]))
+                if on_epoch is not None:
+                    on_epoch(row)
+            if opts.time_budget_s is not None and dist.from_primary(
+                    time.perf_counter() - t_start >= opts.time_budget_s):
+                return state, "time_budget"
+            if opts.stop_at_success is not None and reaches(_success(row),
+                                                            opts.stop_at_success):
+                return state, "stop_at_success"
+        return state, "epochs"
+
+    def train_epoch(self, state, epoch: int, t_zero: float):
+        """Epoch `epoch + 1`: (state after it, its CSV row); t_zero: the run's start on the
+        perf_counter clock (earlier epochs included)."""
+        fns, clock = self.fns, self.clock
+        t0 = time.perf_counter()
+        clock.start()
+        state, m = fns.train_epoch(state)
+        m = jax.device_get(m)
+        epoch_s = time.perf_counter() - t0
+        if bool(np.any(m["nonfinite"])):
+            raise NonFiniteLoss(_nonfinite_message(self.log.run_dir, epoch + 1))
+        t_eval = time.perf_counter()
+        ev = jax.device_get(fns.evaluate(state))
+        row = _epoch_row(self.cfg, self.env, epoch + 1, fns.env_steps(state),
+                         int(state.updates), round(time.perf_counter() - t_zero, 3), ev, m,
+                         epoch_s)
+        row.update(rollout_time=clock.rollout_s, update_time=clock.update_s,
+                   eval_time=time.perf_counter() - t_eval)
+        return state, row
+
+    def video(self, state, epoch: int, env_steps: int) -> None:
+        """RUN_DIR/videos/epoch_{epoch}.mp4 of test episodes, also given to the trackers; when
+        it cannot be made (no renderer, no imageio, an env without a MuJoCo scene) one warning
+        (once per process) and nothing else."""
+        path = os.path.join(self.log.run_dir, "videos", f"epoch_{epoch:04d}.mp4")
+        try:
+            path, frames, fps = self.opts.video(self.eval_env, self.fns, state, path)
+        except Exception as e:  # noqa: BLE001 (no EGL, an env without a scene: videos are extra)
+            if not _VIDEO_WARNED:
+                warn(f"--video-every: no video ({ckpt.root_cause(e)}); training goes on "
+                     "without videos")
+                _VIDEO_WARNED.append(True)
+            return
+        for t in self.trackers:
+            t.log_video(frames, fps, env_steps, path)
 
 
 def check_memory(fns, cfg: TrainConfig) -> None:
     """Raises ConfigError (one line) when the training state (replay buffer, networks,
     optimizer moments; sizes from shapes, nothing allocated) cannot fit in memory."""
-    from daddpg_jax.running import resources
-
     shapes = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
     nbytes = resources.tree_bytes(shapes)
-    if fns.num_devices > 1 and jax.devices()[0].platform != "cpu":
+    if jax.devices()[0].platform != "cpu":
         nbytes //= fns.num_devices   # the replay is sharded over the accelerators' memories
     resources.check_fits(
         f"the training state (buffer_size={cfg.buffer_size:,} transitions, "
@@ -381,8 +458,6 @@ def _open_loggers(loggers, cfg, run_dir, env_overrides, log) -> list:
     """The run's experiment trackers (process 0 only), started with the config."""
     if not dist.is_primary():
         return []
-    from daddpg_jax.running import tracking
-
     if loggers is None:
         loggers = [tracking.TensorBoardLogger(run_dir)]
     for t in loggers:
@@ -393,56 +468,12 @@ def _open_loggers(loggers, cfg, run_dir, env_overrides, log) -> list:
 _VIDEO_WARNED: list = []
 
 
-def _epoch_video(cfg, env, fns, state, run_dir, epoch, env_steps, trackers) -> None:
-    """RUN_DIR/videos/epoch_{epoch}.mp4 of test episodes, also given to the trackers; when it
-    cannot be made (no renderer, no imageio, an env without a MuJoCo scene) one warning (once
-    per process) and nothing else."""
-    from daddpg_jax.analysis import evaluation
-
-    policy = evaluation.Policy(run_dir, epoch, cfg, {}, env, fns, state)
-    try:
-        path, frames, fps = evaluation.epoch_video(
-            policy, os.path.join(run_dir, "videos", f"epoch_{epoch:04d}.mp4"))
-    except Exception as e:  # noqa: BLE001 (no EGL, an env without a scene: videos are extra)
-        if not _VIDEO_WARNED:
-            why = str(e) if isinstance(e, evaluation.RenderUnavailable) else ckpt.root_cause(e)
-            warn(f"--video-every: no video ({why}); training goes on without videos")
-            _VIDEO_WARNED.append(True)
-        return
-    for t in trackers:
-        t.log_video(frames, fps, env_steps, path)
-
-
-def _train_epoch(cfg: TrainConfig, env, fns, state, clock, epoch: int, run_dir: str,
-                 t_zero: float):
-    """Epoch `epoch + 1`: (state after it, its CSV row); t_zero: the run's start on the
-    perf_counter clock (earlier epochs included)."""
-    t0 = time.perf_counter()
-    if clock is not None:
-        clock.start()
-    state, m = fns.train_epoch(state)
-    m = jax.device_get(m)
-    dt = time.perf_counter() - t0
-    if bool(np.any(m["nonfinite"])):
-        raise NonFiniteLoss(_nonfinite_message(run_dir, epoch + 1))
-    t_ev = time.perf_counter()
-    ev = jax.device_get(fns.evaluate(state))
-    row = _epoch_row(cfg, env, epoch + 1, fns.env_steps(state), int(state.updates),
-                     round(time.perf_counter() - t_zero, 3), ev, m, dt)
-    row.update(rollout_time=clock.rollout_s if clock else math.nan,
-               update_time=clock.update_s if clock else math.nan,
-               eval_time=time.perf_counter() - t_ev)
-    return state, row
-
-
-def _plot(cfg: TrainConfig, run_dir: str, rows: list) -> None:
-    """learning_curve.png, written to a temporary file and renamed (never torn by a kill)."""
-    from daddpg_jax.analysis.plotting import plot_learning_curve
-
+def _plot(plot: Callable, cfg: TrainConfig, run_dir: str, rows: list) -> None:
+    """learning_curve.png by `plot`, written to a temporary file and renamed (never torn by a
+    kill)."""
     tmp = ckpt.temp_path(os.path.join(run_dir, "learning_curve.png"), suffix=".png")
     try:
-        plot_learning_curve(rows, tmp, title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs"
-                                             f" / seed {cfg.seed}")
+        plot(rows, tmp, title=f"{cfg.task} / {cfg.algo} / {cfg.num_envs} envs / seed {cfg.seed}")
         os.replace(tmp, os.path.join(run_dir, "learning_curve.png"))
     finally:
         if os.path.lexists(tmp):
@@ -658,9 +689,9 @@ def _reconcile_best(run_dir: str, rows: list) -> float:
 
 
 def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, wall: float,
-               ev: dict, m: dict, dt: float) -> dict:
+               ev: dict, m: dict, epoch_s: float) -> dict:
     """The metrics.csv row of an epoch: ev = evaluation, m = the epoch's per-cycle metrics,
-    dt = the epoch's seconds."""
+    epoch_s = the epoch's seconds (train_epoch, without the evaluation)."""
     fd = np.asarray(ev["final_distance"]).reshape(-1)
     return {
         "epoch": epoch, "env_steps": env_steps, "updates": updates, "wall_time": wall,
@@ -671,8 +702,8 @@ def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, 
         "train_arm_contact_rate": _scalar(m["arm_contact"]),
         "critic_loss": _scalar(m["critic_loss"]), "actor_loss": _scalar(m["actor_loss"]),
         "mean_q": _scalar(m["mean_q"]) if "mean_q" in m else math.nan,
-        "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / dt,
-        "updates_per_s": cfg.n_cycles * cfg.n_batches / dt,
+        "env_steps_per_s": cfg.n_cycles * cfg.num_envs * env.episode_length / epoch_s,
+        "updates_per_s": cfg.n_cycles * cfg.n_batches / epoch_s,
         "bc_loss": _scalar(m["bc_loss"]) if "bc_loss" in m else math.nan,
         "q_filter_pass": _scalar(m["q_filter_pass"]) if "q_filter_pass" in m else math.nan,
         "train_physics_fault_rate":

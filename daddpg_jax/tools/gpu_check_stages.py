@@ -12,6 +12,7 @@ import os
 import statistics
 import time
 import traceback
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -21,8 +22,8 @@ from daddpg_jax.algo import acting
 from daddpg_jax.algo.config import build_config, current_device
 from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.analysis.benchmark import memory
-from daddpg_jax.analysis.levels import reaches
-from daddpg_jax.running.runner import check_physics_backend, train
+from daddpg_jax.running.levels import reaches
+from daddpg_jax.running.runner import RunOptions, check_physics_backend, train
 from daddpg_jax.tools.gpu_check import MIN_STAGE_S
 
 SMOKE_TRAIN = dict(hidden=(32, 32), n_batches=4, batch_size=32, n_test_episodes=8, physics="c")
@@ -281,9 +282,11 @@ def stage_learn(args, rec: Recorder, task: str, process_start: float) -> None:
             raise _Stop
 
     try:
-        train(cfg, os.path.join(args.out, "runs", task), env_overrides=_env_overrides(args),
-              on_epoch=on_epoch, plot=False, force=True, command="gpu_check",
-              time_budget_s=max(1.0, args._deadline - time.time()))
+        train(cfg, RunOptions(os.path.join(args.out, "runs", task),
+                              env_overrides=_env_overrides(args),
+                              hooks=SimpleNamespace(epoch=on_epoch), force=True,
+                              command="gpu_check",
+                              time_budget_s=max(1.0, args._deadline - time.time())))
     except _Stop:
         pass
     except Exception as e:

@@ -14,11 +14,12 @@ import platform
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from daddpg_jax.algo.config import TrainConfig, preset
-from daddpg_jax.analysis.levels import reaches  # success-level test, float32 tolerance
+from daddpg_jax.running.levels import reaches  # success-level test, float32 tolerance
 
 METHODS = ("single", "daddpg", "sb3", "single_mt", "daddpg_mt")
 DEFAULT_METHODS = ("single", "daddpg", "sb3")
@@ -44,7 +45,7 @@ def _load() -> str:
 def run_ours(args, method: str) -> dict:
     algo = method.removesuffix("_mt")
     # lazy: imports JAX, which only the worker process of one of our methods needs
-    from daddpg_jax.running.runner import train
+    from daddpg_jax.running.runner import RunOptions, train
 
     cfg = TrainConfig(**preset(args.task)).replace(
         algo=algo, seed=args.seed, n_epochs=100_000, n_test_episodes=args.eval_episodes,
@@ -66,8 +67,8 @@ def run_ours(args, method: str) -> dict:
             raise _Stop
 
     try:
-        train(cfg, run_dir, on_epoch=on_epoch, plot=False, time_budget_s=args.time_budget,
-              command=" ".join(sys.argv))
+        train(cfg, RunOptions(run_dir, hooks=SimpleNamespace(epoch=on_epoch),
+                              time_budget_s=args.time_budget, command=" ".join(sys.argv)))
     except _Stop:
         pass
     name = f"ours/{algo}" + (" (XLA multi-thread)" if method.endswith("_mt") else "")
