@@ -244,11 +244,11 @@ def test_test_overrides_switch_the_options_off():
     assert settings.test_overrides("reach") == perturbations
     assert settings.test_overrides("push") == {**perturbations, **objects}
     assert settings.test_overrides("toy") == {}
-    from daddpg_jax.analysis.evaluation import test_env_overrides
+    from daddpg_jax.analysis.evaluation import standard_env_overrides
 
-    assert test_env_overrides("pot", {"grasp_start_fraction": 1.0, "max_delta": 0.04}) == {
+    assert standard_env_overrides("pot", {"grasp_start_fraction": 1.0, "max_delta": 0.04}) == {
         **OFF, **perturbations, **objects, "max_delta": 0.04}
-    assert test_env_overrides("reach", None) == perturbations
+    assert standard_env_overrides("reach", None) == perturbations
 
 
 def test_robot_client_runs_the_standard_task(monkeypatch):

@@ -25,7 +25,7 @@ import numpy as np
 
 from daddpg_jax.analysis.evaluation import Z95, evaluate, wilson_interval
 from mjx_envs.schema import ConfigError
-from mjx_envs.settings import PHYSICS
+from mjx_envs.settings import PHYSICS, PHYSICS_VERSION
 
 WARP = "warp"
 """MJX's Warp implementation (``mjx.put_model(..., impl="warp")``): CUDA only, not an engine here"""
@@ -42,6 +42,33 @@ RUN_FIELDS = ("run_dir", "checkpoint", "best", "env_steps", "task", "algo", "epi
 
 PROFILE_COLUMNS = ("step", "time_s", "episodes", "object_mean_m", "object_p90_m",
                    "object_max_m", "grip_mean_m", "grip_p90_m", "grip_max_m")
+
+
+def check_request(physics: str | None, episodes: int, chunk: int | None = None,
+                  watchdog: float | None = None, perturb=(), out: str | None = None,
+                  video: str | None = None, physics_version: int | None = None,
+                  divergence: str | None = None) -> tuple:
+    """The engines a ``daddpg-evaluate`` request names (``(None,)``: the run's), after checking
+    that its options fit together; raises ConfigError (one line naming the flag)."""
+    if episodes < 1:
+        raise ConfigError("--episodes must be >= 1")
+    if chunk is not None and chunk < 1:
+        raise ConfigError("--chunk must be >= 1")
+    if watchdog is not None and watchdog < 0:
+        raise ConfigError("--watchdog must be >= 0 (0: none)")
+    if perturb and not out:
+        raise ConfigError("--perturb needs --out DIR")
+    if perturb and video:
+        raise ConfigError("--perturb and --video exclude each other")
+    names = (None,) if physics is None else parse_engines(physics)
+    if len(names) > 1 and (perturb or video):
+        raise ConfigError("--perturb and --video take one engine, not a comparison")
+    if physics_version is not None and not 1 <= physics_version <= PHYSICS_VERSION:
+        raise ConfigError(f"--physics-version must be in [1, {PHYSICS_VERSION}], got "
+                          f"{physics_version}")
+    if divergence and len(names) < 2:
+        raise ConfigError("--divergence needs two engines, e.g. --physics c,mjx")
+    return names
 
 
 def parse_engines(spec: str, backend: str | None = None) -> tuple[str, ...]:

@@ -96,15 +96,13 @@ class Policy:
     best: bool = False  # restored from checkpoints_best/ (the best test success)
 
 
-def test_env_overrides(task: str, env_overrides: dict | None) -> dict:
-    """A run's env overrides for test episodes: the standard task, i.e. the training-only task
-    options switched off (``mjx_envs.settings.test_overrides``)."""
+def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
+    """A run's env overrides for test (evaluation) episodes: the standard task, i.e. the
+    training-only task options switched off (``mjx_envs.settings.test_overrides``)."""
     from mjx_envs import settings
 
     return {**(env_overrides or {}), **settings.test_overrides(task)}
 
-
-test_env_overrides.__test__ = False  # not a pytest test when imported into a test module
 
 
 def load_policy(run_dir: str, step: int | None = None, physics: str | None = None,
@@ -129,7 +127,7 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
     # nor the demonstrations (n_demos > 0 would play them again to build the template)
     cfg = cfg.replace(buffer_size=1, n_demos=0)
-    overrides = test_env_overrides(cfg.task, payload.get("env_overrides"))
+    overrides = standard_env_overrides(cfg.task, payload.get("env_overrides"))
     if physics_version is not None:
         ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version)
         overrides["physics_version"] = int(physics_version)
@@ -286,6 +284,13 @@ def _metrics_row(run_dir: str, epoch: int) -> dict | None:
             if int(r["epoch"]) == int(epoch):
                 return r
     return None
+
+
+def chunk_options(chunk: int | None, watchdog: float | None) -> dict:
+    """`evaluate`'s ``chunk`` and ``watchdog`` from daddpg-evaluate's flags: None (not given)
+    is "auto", a watchdog of 0 is none."""
+    return dict(chunk="auto" if chunk is None else chunk,
+                watchdog="auto" if watchdog is None else (watchdog or None))
 
 
 def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,

@@ -85,7 +85,7 @@ def evaluate_grid(policy, grid: dict[str, list], episodes: int = 100, seed: int 
     from daddpg_jax.running.runner import make_env
 
     cfg, payload = policy.cfg, policy.payload
-    base = evaluation.test_env_overrides(cfg.task, payload.get("env_overrides"))
+    base = evaluation.standard_env_overrides(cfg.task, payload.get("env_overrides"))
     rows = []
     for point in grid_points(grid):
         env = make_env(cfg, {**base, **point, "perturb_exact": True})
@@ -142,6 +142,14 @@ def run_grid(policy, grid: dict[str, list], episodes: int, seed: int | None, out
                 title=f"{policy.cfg.task} / {run} / {'best ' if policy.best else ''}"
                       f"checkpoint {policy.step}")
     return write_outputs(rows, grid, out_dir, meta)
+
+
+def run_items(policy, items: list[str], episodes: int, seed: int | None, out_dir: str,
+              log=None, **eval_opts) -> dict:
+    """`run_grid` over the grid of ``--perturb KEY=V1,V2,...`` items (`parse_grid`; raises
+    ConfigError); returns the paths written."""
+    grid = parse_grid(policy.cfg.task, items)
+    return run_grid(policy, grid, episodes, seed, out_dir, log=log, **eval_opts)
 
 
 def perturbation_figure(rows: list[dict], grid: dict[str, list], title: str = ""):

@@ -1,17 +1,21 @@
 """What ``daddpg-robot-client`` sets up around the control loop (daddpg_jax/deploy/robot.py):
-the robot's limits with the flags' tightenings, the served policy checked against them, the
-perturbation, the arms' env, and one run of episodes with its summary. NumPy only, no JAX.
+its options checked, the robot's limits with the flags' tightenings, the served policy checked
+against them, the perturbation, the arms' env, and one run of episodes with its summary and
+exit code. NumPy only, no JAX.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import re
 import time
 
 from daddpg_jax.deploy import server
-from daddpg_jax.deploy.arms import ArmsUsageError, make_env
+from daddpg_jax.deploy.arms import ArmsError, ArmsUsageError, make_env
 from daddpg_jax.deploy.calibrate import CalibrationError, parse_base_error
+from daddpg_jax.deploy.client import read_token
 from daddpg_jax.deploy.limits import LimitsError, RobotLimits
 from daddpg_jax.deploy.policy import check_env, env_settings, task_settings
 from daddpg_jax.deploy.robot import Pacer, run_episodes
@@ -21,6 +25,24 @@ from mjx_envs import perturb, schema, settings
 
 class ServiceError(Exception):
     """The service cannot be used (unreachable, another task, bad settings); says why."""
+
+
+def check_options(episodes: int, arms: str, fast: bool = False, perturb=(),
+                  ur_hosts: str | None = None, sim_base_error: str | None = None,
+                  policy_sha256: str | None = None) -> str | None:
+    """One-line error text when daddpg-robot-client's options do not fit together, else
+    None."""
+    if episodes < 1:
+        return f"--episodes must be >= 1, got {episodes}"
+    if arms == "ur" and (fast or perturb):
+        return "--fast and --perturb are for simulated arms only (--arms sim or ur-sim)"
+    if arms != "ur" and ur_hosts:
+        return "--ur-hosts needs --arms ur"
+    if arms != "ur-sim" and sim_base_error:
+        return "--sim-base-error needs --arms ur-sim"
+    if policy_sha256 is not None and not re.fullmatch(r"[0-9a-f]{64}", policy_sha256.lower()):
+        return "--policy-sha256 must be 64 hexadecimal digits (as sha256sum prints them)"
+    return None
 
 
 def robot_limits(path: str | None, fast: bool = False, speed_scale: float = 1.0,
@@ -97,6 +119,63 @@ def arms_env(kind: str, task_cfg, task: str, limits, hosts: str | None = None,
                     dry_run=dry_run, base_error=error, exact=exact)
 
 
+class SetupError(Exception):
+    """The run cannot start; says why, with the client's exit code (2 usage, limits or service;
+    4 the arms cannot be reached)."""
+
+    def __init__(self, message: str, exit_code: int = 2):
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+@dataclasses.dataclass
+class Setup:
+    """Everything a run needs besides the options: the limits (RobotLimits and the
+    SafetyLimits in force), the token, the service's info, its task, the perturbation (None:
+    none) and the arms' env."""
+    robot_limits: RobotLimits
+    safety: object
+    token: str | None
+    info: dict
+    task: str
+    perturbation: object
+    env: object
+
+
+def prepare(opt, report=print) -> Setup:
+    """The Setup of daddpg-robot-client's parsed options `opt` (its argparse namespace), in order:
+    the limits (`robot_limits`; `report(line)` gets their description), the token, the served
+    policy (`served_policy`), the perturbation, the --log directory and the arms' env
+    (`arms_env`). Raises SetupError."""
+    try:
+        limits, safety = robot_limits(
+            opt.limits, fast=opt.fast, speed_scale=opt.speed_scale, deadline_ms=opt.deadline_ms,
+            max_observation_age_ms=opt.max_observation_age_ms, max_speed=opt.max_speed,
+            min_clearance=opt.min_clearance, workspace_margin=opt.workspace_margin)
+        token = read_token(opt.token_file) if opt.token_file else None
+    except ValueError as e:  # LimitsError included
+        raise SetupError(str(e)) from None
+    report(limits.describe(opt.speed_scale))
+    sha = None if opt.policy_sha256 is None else opt.policy_sha256.lower()
+    try:
+        info, task_cfg, _ = served_policy(opt.server, limits, opt.task, sha, token)
+        task = info["task"]
+        perturbed = perturbation(task, opt.perturb) if opt.perturb else None
+    except (ServiceError, schema.ConfigError) as e:
+        raise SetupError(str(e)) from None
+    if opt.log:
+        try:
+            os.makedirs(opt.log, exist_ok=True)
+        except OSError as e:
+            raise SetupError(f"cannot create --log directory {opt.log!r}: {e.strerror}") from None
+    try:
+        env = arms_env(opt.arms, task_cfg, task, limits, hosts=opt.ur_hosts, dry_run=opt.dry_run,
+                       base_error=opt.sim_base_error, exact=not opt.float64)
+    except ArmsError as e:  # ArmsUsageError: exit 2; the arms cannot be reached: 4
+        raise SetupError(str(e), 2 if isinstance(e, ArmsUsageError) else 4) from None
+    return Setup(limits, safety, token, info, task, perturbed, env)
+
+
 def episode_logger(log_dir: str):
     """on_log for run_episodes: one JSON file per episode in the directory log_dir."""
     def on_log(log):
@@ -140,3 +219,30 @@ def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor
                 json.dump(env.arms.sent, f)
     out["wall_s"] = round(time.perf_counter() - t0, 2)
     return out
+
+
+def limits_fields(robot_limits, safety, speed_scale: float, monitor, perturbation) -> dict:
+    """The summary's record of the limits a run kept: their source, the speed scale, the
+    deadline, step cap, clearance and observation age in force, the outage limits and the
+    perturbation (None: none)."""
+    return dict(limits=robot_limits.source, speed_scale=speed_scale,
+                deadline_ms=safety.deadline_s * 1e3, max_step_m=safety.max_step,
+                min_clearance_m=safety.min_clearance,
+                max_observation_age_ms=robot_limits.max_observation_age * 1e3,
+                max_missed=monitor.max_missed, max_outage_s=monitor.max_outage_s,
+                perturbation=(dataclasses.asdict(perturbation)
+                              if perturbation is not None else None))
+
+
+def outcome(out: dict, episodes: int) -> tuple[int, str | None]:
+    """(exit code, closing stderr line or None) of a run's summary: 3 with an error line when
+    it was aborted, else 0 with a note when episodes were excluded."""
+    excluded = out["excluded_episodes"]
+    if out["aborted"]:
+        aborted = out["aborted"]
+        return 3, (f"error: {aborted['reason']}; aborted in episode {aborted['episode']} of "
+                   f"{episodes}; {excluded} episode(s) excluded, {out['episodes']} counted")
+    if excluded:
+        return 0, (f"note: {excluded} of {out['episodes_run']} episodes excluded from the "
+                   f"results (missed deadlines)")
+    return 0, None
