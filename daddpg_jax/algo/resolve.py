@@ -1,5 +1,6 @@
-"""A training run's configuration from the flags of ``daddpg-train``: the task preset, or a
-recorded run's config, merged with the flags' overrides; and the field listing of its --help.
+"""``daddpg-train``'s flags and the training run's configuration they give: the flag table
+(`FLAGS`, one entry per flag: its type, default, choices and help), the task preset or a
+recorded run's config merged with the flags' overrides, and the field listing of --help.
 
 JAX-free (``daddpg-train --help`` and argument errors load no JAX): a recorded config is read
 through the `load_recorded` function the caller passes (``running.run_dirs.recorded``).
@@ -9,12 +10,132 @@ from __future__ import annotations
 
 import textwrap
 
-from daddpg_jax.algo.config import TrainConfig, build_config, preset, preset_env, robust_env
+from daddpg_jax.algo.config import (
+    DEVICES,
+    HER_MODES,
+    PHYSICS,
+    TrainConfig,
+    build_config,
+    preset,
+    preset_env,
+    robust_env,
+)
+from daddpg_jax.algo.variants import ALGOS, VARIANTS
 from mjx_envs import schema, settings
 from mjx_envs.schema import ConfigError
 
 FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
 """flags that are also TrainConfig fields (flag attribute = field name)"""
+
+FLAGS = (
+    # the training config (resolve_config)
+    ("--task", dict(choices=lambda device: settings.TASKS, default=None,
+                    help="task to train (default reach; taken from config.json with --resume "
+                         "or --config)")),
+    ("--task-module", dict(default=None, metavar="MODULE",
+                           help="module that registers a task defined outside this package "
+                                "(recorded in config.json as task_module; docs/TASKS.md, "
+                                "'Adding a task')")),
+    ("--num-envs", dict(type=int, default=None,
+                        help="parallel environments; the task preset scales batch size and "
+                             "updates per cycle with it (default: the preset's: 2 on a CPU, "
+                             "4096 on an accelerator)")),
+    ("--device", dict(choices=DEVICES, default=None,
+                      help=lambda device: "device whose preset to use (default: the one JAX "
+                                          f"runs on, {device})")),
+    ("--epochs", dict(type=int, default=None,
+                      help="total epochs (an epoch = n_cycles cycles + evaluation); with "
+                           "--resume the run continues until this many epochs are done "
+                           "(default: preset)")),
+    ("--seed", dict(type=int, default=None, help="training seed (default 0)")),
+    ("--algo", dict(choices=ALGOS, default=None,
+                    help="; ".join(f"{v.name}: {v.doc}" for v in VARIANTS.values()))),
+    ("--her", dict(choices=HER_MODES, default=None,
+                   help="hindsight relabelling strategy (future uses k=4: 80%% relabelled)")),
+    ("--physics", dict(choices=PHYSICS, default=None,
+                       help="physics engine: auto = MJX on an accelerator, MuJoCo C engine on "
+                            "CPU")),
+    # the run directory (cli.train.resolve, running.run_dirs)
+    ("--out", dict(default=None,
+                   help="run directory (default runs/<task>_<algo>_s<seed>_<time>); must be "
+                        "new or empty unless --force")),
+    ("--force", dict(action="store_true",
+                     help="with --out: delete the run already in that directory (its "
+                          "config.json, metrics.csv, learning_curve.png, checkpoints*) and "
+                          "start a new one (refused for a directory that holds no run)")),
+    ("--resume", dict(metavar="RUN_DIR", default=None,
+                      help="continue the run in RUN_DIR from its newest readable checkpoint "
+                           "(its config.json is reused; --epochs may raise the total; a run "
+                           "stopped before its first checkpoint starts again from epoch 0)")),
+    ("--config", dict(metavar="CONFIG_JSON", default=None,
+                      help="start a new run from a recorded configuration (RUN/config.json or "
+                           "RUN): its training fields and env overrides; flags given with it "
+                           "override them")),
+    ("--save-buffer", dict(action="store_true",
+                           help="store the replay buffer in checkpoints (large; makes --resume "
+                                "bit-exact)")),
+    ("--set", dict(action="append", metavar="KEY=VALUE", default=[],
+                   help="override any training field (listed below); repeatable")),
+    ("--env", dict(action="append", metavar="KEY=VALUE", default=[],
+                   help="override any env field of the task (listed below); repeatable")),
+    ("--robust", dict(action="store_true",
+                      help="train with the robust preset: per-episode observation noise, "
+                           "dropout, bias, action latency and physics randomization "
+                           "(daddpg_jax.algo.config.ROBUST_ENV; test episodes stay nominal), "
+                           "and each arm's last action in its observation (ROBUST_OBS: "
+                           "action_history=1, kept in test episodes and exports); --env "
+                           "overrides single fields; docs/ENVIRONMENTS.md")),
+    ("--demos", dict(type=int, default=None, metavar="N",
+                     help="play N episodes of the task's scripted controller at the start and "
+                          "train on them beside the replay, with a behaviour-cloning term "
+                          "(push, pickup, pot; not in the paper; same as --set n_demos=N; "
+                          "default 0 = off; docs/TRAINING.md#demonstrations)")),
+    # the run's options (running.runner.RunOptions) and its output
+    ("--time-budget", dict(type=float, default=None, metavar="SECONDS",
+                           help="stop after the epoch during which this much wall time has "
+                                "passed")),
+    ("--stop-at-success", dict(type=float, default=None, metavar="RATE",
+                               help="stop after the first epoch whose test success rate is at "
+                                    "least RATE (e.g. 0.9: time-to-target benchmarks)")),
+    ("--no-progress", dict(action="store_true",
+                           help="no progress bar, only one line per epoch (the default when "
+                                "stderr is not a terminal)")),
+    ("--no-tensorboard", dict(action="store_true",
+                              help="do not write TensorBoard event files (RUN_DIR/tensorboard; "
+                                   "default: every metrics.csv column against env steps, and "
+                                   "the config as text)")),
+    ("--wandb", dict(nargs="?", const="daddpg-jax", default=None, metavar="PROJECT",
+                     help="also log to Weights & Biases, project PROJECT (default daddpg-jax); "
+                          "needs the optional extra: pip install 'daddpg-jax[wandb]'; "
+                          "WANDB_MODE=offline logs to RUN_DIR/wandb without an account")),
+    ("--video-every", dict(type=int, default=0, metavar="N",
+                           help="every N epochs, render test episodes to "
+                                "RUN_DIR/videos/epoch_N.mp4 and to TensorBoard (needs "
+                                "MUJOCO_GL=egl and imageio; without a renderer: one warning, "
+                                "training goes on; default 0 = never)")),
+    ("--debug", dict(action="store_true",
+                     help="show the traceback of an unexpected error (default: one line)")),
+)
+"""daddpg-train's flags besides the multi-process ones (running.distributed.add_flags), in
+--help order: (flag, argparse keywords). A `choices` or `help` that is a function is called with
+the device when the parser is built (the task list then holds the tasks of --task-module)."""
+
+
+def add_flags(parser, device: str) -> None:
+    """The `FLAGS` on `parser`; `device` is the one --help names as the default."""
+    for flag, kw in FLAGS:
+        parser.add_argument(flag, **{k: v(device) if k in ("choices", "help") and callable(v)
+                                     else v for k, v in kw.items()})
+
+
+def check_flags(args) -> None:
+    """The checks of the flags that need neither a device nor JAX (before resolve_config):
+    ConfigError (one line, naming the flag)."""
+    if args.stop_at_success is not None and not 0.0 <= args.stop_at_success <= 1.0:
+        raise ConfigError(f"--stop-at-success must be in [0, 1], got {args.stop_at_success}")
+    if args.video_every < 0:
+        raise ConfigError(f"--video-every must be >= 0, got {args.video_every}")
+    schema.parse_overrides(TrainConfig, args.set, "--set")
 
 
 def field_help(device: str) -> str:

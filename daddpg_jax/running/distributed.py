@@ -21,6 +21,7 @@ imports it before parsing its flags, and --help stays JAX-free.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
@@ -80,6 +81,34 @@ def parse_coordinator(address: str) -> tuple[str, int]:
         raise DistributedError(f"--coordinator {address!r}: expected HOST:PORT (e.g. "
                                "node0:12345), the address of process 0")
     return host, int(port)
+
+
+def add_flags(parser) -> None:
+    """daddpg-train's multi-process flags, as one argument group of `parser`."""
+    g = parser.add_argument_group(
+        "multi-process training (docs/SCALING.md; every process runs the same command, only "
+        "--process-id differs; without these flags the cluster's variables are used when they "
+        "show more than one process, e.g. SLURM's srun)")
+    g.add_argument("--coordinator", metavar="HOST:PORT", default=None,
+                   help="address of process 0, which runs the job's coordinator")
+    g.add_argument("--num-processes", type=int, default=None, metavar="N",
+                   help="number of processes in the job")
+    g.add_argument("--process-id", type=int, default=None, metavar="I",
+                   help="this process's id, 0 .. N-1 (process 0 writes the run's files)")
+    g.add_argument("--distributed-timeout", type=float, default=DEFAULT_TIMEOUT,
+                   metavar="SECONDS",
+                   help="give up joining the job after this long, with an error "
+                        f"(default {DEFAULT_TIMEOUT:g})")
+
+
+def join_from_argv(argv=None) -> Layout | None:
+    """`join` with the multi-process flags (`add_flags`) found in the command line `argv`
+    (default sys.argv; the other arguments are left to the command's own parser)."""
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    add_flags(pre)
+    args, _ = pre.parse_known_args(argv)
+    return join(args.coordinator, args.num_processes, args.process_id,
+                timeout=args.distributed_timeout)
 
 
 def join(coordinator: str | None = None, num_processes: int | None = None,

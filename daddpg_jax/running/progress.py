@@ -10,12 +10,26 @@ only.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
 from tqdm import tqdm
 
 from daddpg_jax.algo.config import TrainConfig
+
+
+def header(cfg: TrainConfig, run_dir: str) -> str:
+    """The lines printed before training: the run directory and the run's size."""
+    lines = [f"run dir: {os.path.abspath(run_dir)}",
+             f"task {cfg.task}, algo {cfg.algo}, her {cfg.her}, num_envs {cfg.num_envs}, batch "
+             f"{cfg.batch_size} x {cfg.n_batches} updates/cycle, {cfg.n_cycles} cycles/epoch, "
+             f"{cfg.n_epochs} epochs"]
+    if cfg.n_demos > 0:
+        lines.append(f"demonstrations: {cfg.n_demos} scripted episodes (not counted in env "
+                     f"steps), {cfg.demo_batch} demo transitions per update, bc_weight "
+                     f"{cfg.bc_weight}, q_filter {cfg.q_filter}")
+    return "\n".join(lines)
 
 
 def epoch_line(row: dict) -> str:

@@ -88,3 +88,14 @@ def lock(run_dir: str) -> None:
 
 
 unlock = ckpt.unlock_run_dir
+
+
+def claim(run_dir: str, resume: bool, force: bool, primary: bool) -> str:
+    """The run's directory, claimed before training: a new run's named, checked and locked
+    (`claim_new`, on every process); a resumed run's locked by process 0 (`primary`)."""
+    if not resume:
+        return claim_new(run_dir, force)
+    if primary:
+        lock(run_dir)
+    return run_dir
+

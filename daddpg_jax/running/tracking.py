@@ -161,3 +161,12 @@ class WandbLogger:
         if self.run is not None:
             self.run.finish()
             self.run = None
+
+
+def loggers(run_dir: str, tensorboard: bool = True, wandb_project: str | None = None) -> list:
+    """The experiment trackers of a run: TensorBoard unless `tensorboard` is False, W&B when a
+    project is named (ConfigError when wandb is not installed)."""
+    out = [TensorBoardLogger(run_dir)] if tensorboard else []
+    if wandb_project:
+        out.append(WandbLogger(run_dir, project=wandb_project))
+    return out
