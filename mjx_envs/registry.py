@@ -44,7 +44,8 @@ class Task:
       ``epoch_env_steps`` and ``n_epochs``.
     env_preset: env overrides a new run trains with unless ``--env`` says otherwise (e.g.
       grasped starts).
-    gym_id / dense_gym_id: its Gymnasium ids (sparse reward; dense reward); None = none.
+    gym_id / dense_gym_id: its Gymnasium ids (sparse reward; dense reward); by default
+      derived from the name (`gym_ids`: 'pot' -> DualUR3Pot-v0, DualUR3PotDense-v0); '' = none.
     module: the module that declares it (recorded by training runs as ``task_module``).
     """
 
@@ -61,6 +62,12 @@ class Task:
     gym_id: str | None = None
     dense_gym_id: str | None = None
     module: str = ""
+
+    def __post_init__(self):
+        derived = gym_ids(self.name)
+        for field, default in zip(("gym_id", "dense_gym_id"), derived):
+            if getattr(self, field) is None:
+                object.__setattr__(self, field, default)   # frozen: set once, here
 
 
 _TASKS: dict[str, Task] = {}
@@ -133,6 +140,12 @@ def import_task_module(module: str | None) -> None:
     except ImportError as e:
         raise ValueError(f"task module {module!r} cannot be imported ({e}); is its directory "
                          "on PYTHONPATH?") from None
+
+
+def gym_ids(name: str) -> tuple[str, str]:
+    """The default Gymnasium ids of task `name` (sparse reward, dense reward):
+    'pick_up' -> ('DualUR3PickUp-v0', 'DualUR3PickUpDense-v0')."""
+    return f"DualUR3{class_name(name)}-v0", f"DualUR3{class_name(name)}Dense-v0"
 
 
 def make_rules(name: str, config, model):

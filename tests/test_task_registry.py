@@ -55,6 +55,21 @@ def test_builtin_tasks_come_from_their_modules():
     assert config_lib.preset_env("pot") == {"grasp_start_fraction": 0.5}
 
 
+def test_gym_ids_default_from_the_task_name():
+    """~0.1 s. A task that names no Gymnasium ids gets DualUR3<Name>-v0 and
+    DualUR3<Name>Dense-v0 (the built-in ids, unchanged); '' means none; given ids stay."""
+    assert mjx_envs.ENV_IDS == {"reach": "DualUR3Reach-v0", "push": "DualUR3Push-v0",
+                                "pickup": "DualUR3Pickup-v0", "pot": "DualUR3Pot-v0"}
+    assert mjx_envs.DENSE_ENV_IDS == {t: i.replace("-v0", "Dense-v0")
+                                      for t, i in mjx_envs.ENV_IDS.items()}
+    base = registry.get("reach")
+    task = registry.Task(name="lift_bar", config=base.config, rules=base.rules)  # unregistered
+    assert (task.gym_id, task.dense_gym_id) == ("DualUR3LiftBar-v0", "DualUR3LiftBarDense-v0")
+    task = registry.Task(name="lift_bar", config=base.config, rules=base.rules, gym_id="Mine-v1",
+                         dense_gym_id="")
+    assert (task.gym_id, task.dense_gym_id) == ("Mine-v1", "")
+
+
 def test_unknown_task_is_one_clear_error():
     """~0.1 s."""
     with pytest.raises(ValueError, match="unknown task 'nope'; available"):

@@ -42,7 +42,5 @@ TASK = registry.register(registry.Task(
     accelerator_preset=dict(epoch_env_steps=1_000_000, n_epochs=80),
     # half the episodes start grasped (docs/TRAINING.md, "Presets")
     env_preset=dict(grasp_start_fraction=0.5),
-    gym_id="DualUR3Pickup-v0",
-    dense_gym_id="DualUR3PickupDense-v0",
     module=__name__,
 ))

@@ -38,7 +38,5 @@ TASK = registry.register(registry.Task(
     accelerator_preset=dict(epoch_env_steps=1_000_000, n_epochs=120),
     # half the episodes start grasped (docs/TRAINING.md, "Presets")
     env_preset=dict(grasp_start_fraction=0.5),
-    gym_id="DualUR3Pot-v0",
-    dense_gym_id="DualUR3PotDense-v0",
     module=__name__,
 ))

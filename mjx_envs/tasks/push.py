@@ -51,7 +51,5 @@ TASK = registry.register(registry.Task(
     scripted=scripted_policy,
     cpu_preset=dict(n_cycles=50, n_epochs=100),
     accelerator_preset=dict(epoch_env_steps=1_000_000, n_epochs=40),
-    gym_id="DualUR3Push-v0",
-    dense_gym_id="DualUR3PushDense-v0",
     module=__name__,
 ))

@@ -33,7 +33,5 @@ TASK = registry.register(registry.Task(
     rules=ReachRules,
     cpu_preset=dict(n_cycles=20, n_epochs=20),
     accelerator_preset=dict(epoch_env_steps=400_000, n_epochs=10),
-    gym_id="DualUR3Reach-v0",
-    dense_gym_id="DualUR3ReachDense-v0",
     module=__name__,
 ))

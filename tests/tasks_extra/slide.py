@@ -52,6 +52,5 @@ TASK = mjx_envs.register(mjx_envs.Task(
     scripted=scripted_policy,
     cpu_preset=dict(n_cycles=10, n_epochs=20),
     accelerator_preset=dict(epoch_env_steps=500_000, n_epochs=20),
-    gym_id="DualUR3Slide-v0",
     module=__name__,
 ))
