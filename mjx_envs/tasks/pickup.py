@@ -7,8 +7,8 @@ squeezes a neck with ~6 N, enough for two grippers to carry the 0.5 kg bar but f
 for one gripper to hold it level (it pivots about the grasp). Both end targets come from ONE
 sampled bar pose 0.05-0.15 m above the bar's resting height; success when both ends are within
 0.05 m. Fingers are active (the 4th action of each arm opens/closes its gripper). Rules:
-`mjx_envs.rules.ObjectRules`; scripted controller: the two-arm grasp
-(`mjx_envs.tasks.scripted.grasp_policy`).
+`mjx_envs.rules.ObjectRules`; scripted controller: the two-arm grasp shared with the other
+lift task (`mjx_envs.tasks.lift`).
 """
 
 from __future__ import annotations
@@ -16,14 +16,7 @@ from __future__ import annotations
 from mjx_envs import registry
 from mjx_envs.rules import ObjectRules
 from mjx_envs.settings import CONTACT_DEFAULTS, LiftTaskConfig
-
-
-def scripted_policy(obs, max_delta: float = 0.05):
-    """Both grippers approach their necks open, descend, close, and carry the bar together."""
-    from mjx_envs.tasks import scripted  # lazy: the registry reads this module without JAX
-
-    return scripted.grasp_policy(obs, max_delta)
-
+from mjx_envs.tasks.lift import scripted_policy
 
 TASK = registry.register(registry.Task(
     name="pickup",

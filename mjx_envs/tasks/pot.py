@@ -5,8 +5,8 @@ A box-shaped pot with a lid and a round knob stands on the table (assets/scene_p
 arm's achieved goal is its handle. Both handle targets come from ONE sampled pot pose
 0.05-0.12 m above the pot's resting height (upright, no yaw), so no target can be reached by
 pushing: the pot must be lifted. Success when both handles are within 0.05 m. Fingers active.
-Rules: `mjx_envs.rules.ObjectRules`; scripted controller: the two-arm grasp
-(`mjx_envs.tasks.scripted.grasp_policy`).
+Rules: `mjx_envs.rules.ObjectRules`; scripted controller: the two-arm grasp shared with the other
+lift task (`mjx_envs.tasks.lift`).
 """
 
 from __future__ import annotations
@@ -14,14 +14,7 @@ from __future__ import annotations
 from mjx_envs import registry
 from mjx_envs.rules import ObjectRules
 from mjx_envs.settings import CONTACT_DEFAULTS, LiftTaskConfig
-
-
-def scripted_policy(obs, max_delta: float = 0.05):
-    """Both grippers approach their handles open, descend, close, and carry the pot together."""
-    from mjx_envs.tasks import scripted  # lazy: the registry reads this module without JAX
-
-    return scripted.grasp_policy(obs, max_delta)
-
+from mjx_envs.tasks.lift import scripted_policy
 
 TASK = registry.register(registry.Task(
     name="pot",
