@@ -58,6 +58,7 @@ from gymnasium import spaces
 from mjx_envs import (  # noqa: F401  (ENV_IDS, DENSE_ENV_IDS: read here by callers too)
     DENSE_ENV_IDS,
     ENV_IDS,
+    pipeline,
     register_gymnasium_envs,
     rules,
     settings,
@@ -136,7 +137,11 @@ class DualUR3GoalEnv(gym.Env):
         self._renderer = None
 
         self.action_history = int(cfg.action_history)
-        self._hist = obs_lib.empty_action_history(np, self.action_history)
+        # what the policy sees: the action history stage (`mjx_envs.pipeline`, as the robot
+        # client; the simulator applies no perturbation), its per-episode carry in _seen
+        self._pipeline = pipeline.Pipeline(
+            pipeline.stages(np, None, action_history=self.action_history))
+        self._seen = None
         n_obs = NUM_ARMS * obs_lib.obs_size(self.action_history)
         box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
         self.observation_space = spaces.Dict(
@@ -178,11 +183,9 @@ class DualUR3GoalEnv(gym.Env):
 
     # -- API ------------------------------------------------------------------------------------
 
-    def _observe(self, res) -> tuple[dict, dict]:
-        """(observation dict, info) from the simulator's `StepResult`."""
-        obs = res.observation
-        if self.action_history:
-            obs = obs_lib.with_action_history(np, obs, self._hist)
+    def _observe(self, res, obs) -> tuple[dict, dict]:
+        """(observation dict, info) from the simulator's `StepResult` and the observation the
+        policy sees."""
         o = {"observation": obs.reshape(-1),
              "achieved_goal": res.achieved_goal.reshape(-1),
              "desired_goal": res.desired_goal.reshape(-1)}
@@ -200,18 +203,18 @@ class DualUR3GoalEnv(gym.Env):
         res = self.sim.reset(self.np_random, goal=options.get("goal"), qpos=options.get("qpos"))
         self._t = 0
         self._needs_reset = False
-        self._hist = obs_lib.empty_action_history(np, self.action_history)
-        return self._observe(res)
+        obs, self._seen = self._pipeline.start(None, res.observation)
+        return self._observe(res, obs)
 
     def step(self, action):
         if self._needs_reset:
             raise RuntimeError("step() after the end of an episode (or before reset()); "
                                "call reset()")
+        action, self._seen = self._pipeline.act(self._seen, action)
         res = self.sim.step(np.asarray(action, np.float32))
-        if self.action_history:
-            self._hist = obs_lib.push_action(np, self._hist, action)
         self._t += 1
-        o, info = self._observe(res)
+        obs, self._seen = self._pipeline.observe(self._seen, res.observation)
+        o, info = self._observe(res, obs)
         reward = float(self.compute_reward(o["achieved_goal"], o["desired_goal"], info))
         truncated = self._t >= self.episode_length
         self._needs_reset = truncated

@@ -2,8 +2,9 @@
 of the observation pipeline, written once over ``xp`` (NumPy or jax.numpy).
 
 The simulator applies them as wrappers (`mjx_envs.wrappers`: one wrapper per stage, the carry
-in ``State.info``); the robot client (`daddpg_jax.deploy.robot.run_episode`, NumPy) chains the
-same stages in a `Pipeline`. In order, from the arms outwards:
+in ``State.info``); the robot client (`daddpg_jax.deploy.robot.run_episode`, NumPy) and the
+Gymnasium adapter (`mjx_envs.gym_env`, its action history) chain the same stages in a
+`Pipeline`. In order, from the arms outwards:
 
 1. believed frames: the gripper terms in each arm's nominal frame (`mjx_envs.randomize.
    believed_obs`; the simulator's physics randomization, part of `mjx_envs.wrappers.Randomize`:
