@@ -236,11 +236,13 @@ class RobotLimits:
                 raise LimitsError(f"the service serves a {served!r} policy, not {want!r} "
                                   f"({where})")
         env = info.get("env")
-        dt = env.get("dt") if isinstance(env, Mapping) else None
-        if (isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt)
-                or abs(dt - self.control_period) > 1e-9 + 1e-6 * self.control_period):
-            raise LimitsError(f"the served policy's control period {dt!r} s differs from the "
-                              f"robot's {self.control_period:g} s")
+        served_period_s = env.get("dt") if isinstance(env, Mapping) else None
+        if (isinstance(served_period_s, bool) or not isinstance(served_period_s, (int, float))
+                or not math.isfinite(served_period_s)
+                or abs(served_period_s - self.control_period)
+                > 1e-9 + 1e-6 * self.control_period):
+            raise LimitsError(f"the served policy's control period {served_period_s!r} s differs "
+                              f"from the robot's {self.control_period:g} s")
         layout = (info.get("action_size"), info.get("num_arms", NUM_ARMS),
                   info.get("arm_action", ARM_ACTION))
         if layout != (NUM_ARMS * ARM_ACTION, NUM_ARMS, ARM_ACTION):

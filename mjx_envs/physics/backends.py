@@ -235,7 +235,8 @@ class CBackend:
         self._sl_act = slice(i, i + k)
         self._i_time = self._off["mjSTATE_TIME"][0]
         self.rand = rand
-        self.np_ = randomize.PARAMS if rand is not None else 0  # parameters per env
+        # randomized parameters per env (0: no randomization)
+        self.n_rand_params = randomize.PARAMS if rand is not None else 0
         self._env_models: dict = {}  # batch size -> (per-env MjModel copies, their params)
 
     def models_for(self, params) -> list:
@@ -351,7 +352,7 @@ class CBackend:
         time, qpos, qvel, act, ctrl, mocap, params = parts
         out = self._host_step(time[..., 0], qpos, qvel, act, ctrl,
                               mocap.reshape(lead + (self.nmocap, 3)),
-                              params if self.np_ else None)
+                              params if self.n_rand_params else None)
         t, q, v, a, sens, ok = out
         return np.concatenate([t[..., None], q, v, a, sens, ok[..., None]], axis=-1)
 
@@ -359,7 +360,7 @@ class CBackend:
         ctrl = jnp.asarray(ctrl, jnp.float32)
         mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
         parts = [data.time[None], data.qpos, data.qvel, data.act, ctrl, mocap_pos.reshape(-1)]
-        if self.np_:
+        if self.n_rand_params:
             if params is None:
                 raise ValueError("this backend was built with randomization: step needs params")
             parts.append(jnp.asarray(params, jnp.float32).reshape(-1))
