@@ -17,7 +17,7 @@ stepped), `measure` builds the task on both engines with that change and reports
 Both engines start every episode from the same state: the reset runs on the C engine and the
 MJX env starts from its ``qpos``/``qvel``/targets (``mjx.Data`` with a zero warmstart; the first
 ``mjx.step`` computes everything else), so each MJX variant compiles one program only (the
-batched policy + step; ~30-50 s on a 2-core CPU) instead of two.
+batched policy + step) instead of two (compile time: docs/TASKS.md, "MJX vs C").
 
 Ways of stepping the C engine (`C_MODES`): ``rollout`` is the backend as it is
 (`mjx_envs.physics.backends.CBackend`: ``mujoco.rollout`` per control step, which zeroes the

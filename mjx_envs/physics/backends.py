@@ -344,7 +344,7 @@ class CBackend:
         """_host_step on one packed float32 array [..., 1 + nq + nv + na + nu + 3 nmocap]
         (time, qpos, qvel, act, ctrl, mocap) -> [..., 1 + nq + nv + na + ns + 1] (time, qpos,
         qvel, act, sensordata, ok): one argument and one result per callback instead of six of
-        each, which halves JAX's per-call transfer overhead at small batches."""
+        each, fewer transfers per call (measured: docs/BENCHMARKS.md, "Profiling pass (CPU)")."""
         x = np.asarray(x)
         lead = x.shape[:-1]
         parts = np.split(x, np.cumsum([1, self.nq, self.nv, self.na, self.nu,
