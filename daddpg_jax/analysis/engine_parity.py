@@ -39,6 +39,7 @@ and writes them to a JSON store and a Markdown table (docs/TASKS.md, "MJX vs C")
 
 from __future__ import annotations
 
+import argparse
 import copy
 import dataclasses
 import json
@@ -63,10 +64,11 @@ from daddpg_jax.analysis.parity_candidates import (  # noqa: F401
     candidate,
 )
 from mjx_envs import observation as obs_lib
+from mjx_envs import settings
 from mjx_envs.physics import backends
 from mjx_envs.tasks import scripted
 
-TASKS = tuple(mjx_envs.settings.OBJECTS)   # the tasks with an object
+TASKS = tuple(settings.OBJECTS)   # the tasks with an object
 SHORT_STEPS = 10
 """open-loop control steps of the divergence measure (tests/test_env_contact.py: T_SHORT)"""
 TEST_KEY, TEST_EPISODES = 7, 2
@@ -329,8 +331,6 @@ def grasp_states(task: str, episodes: int = 8, seed: int = 0) -> dict:
 
 
 def _object_dofs(m: mujoco.MjModel, task: str) -> slice:
-    from mjx_envs import settings
-
     j = m.joint(settings.OBJECTS[task][0]).id
     a = int(m.jnt_dofadr[j])
     return slice(a, a + 6)
@@ -463,8 +463,6 @@ def format_forward_table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    import argparse
-
     p = argparse.ArgumentParser(
         description="Measure, per candidate cause of the MJX/C disagreement, the short-horizon "
                     "object divergence and the scripted controller's success on both engines "

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from daddpg_jax.deploy import robot, ur3
 from daddpg_jax.deploy.safety import SafetyLimits
 from mjx_envs.settings import TaskConfig
 
@@ -253,8 +254,6 @@ class RobotLimits:
     def base_transforms(self) -> np.ndarray:
         """World <- base transforms [2, 4, 4] of the arms (left, right): the calibration, else
         the nominal cell."""
-        from daddpg_jax.deploy import robot, ur3
-
         if self.calibration is None:
             return np.stack([ur3.base_transform(a) for a in robot.ARMS])
         out = np.zeros((NUM_ARMS, 4, 4))

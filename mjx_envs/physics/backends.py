@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from mujoco import rollout
 
 from mjx_envs import randomize, settings
 
@@ -84,6 +85,7 @@ def import_mjx():
     buf = io.StringIO()
     try:
         with contextlib.redirect_stdout(buf):
+            # lazy: MJX loads only when an MJX backend is built, under this stdout filter
             from mujoco import mjx
     finally:
         for line in buf.getvalue().splitlines():
@@ -167,8 +169,6 @@ _POOL_LOCK = threading.Lock()
 
 
 def _rollout_pool(nthread: int):
-    from mujoco import rollout
-
     if nthread not in _POOLS:
         pool = rollout.Rollout(nthread=nthread)
         atexit.register(pool.close)
@@ -209,9 +209,6 @@ class CBackend:
 
     def __init__(self, model: mujoco.MjModel, n_substeps: int, nthread: int | None = None,
                  rand: randomize.ModelIndex | None = None):
-        from mujoco import rollout
-
-        self._rollout = rollout
         self.mj_model = model
         self.n_substeps = int(n_substeps)
         self.nthread = int(nthread or max(1, os.cpu_count() or 1))
