@@ -427,7 +427,7 @@ class ArmsEnv:
 
     def observe(self):
         """A fresh `mjx_envs.numpy_env.StepResult` from the arms (``captured_at`` set)."""
-        from mjx_envs.numpy_env import StepResult
+        from mjx_envs.numpy_env import StepResult  # lazy: MuJoCo; NumPy only at import
 
         r = self.arms.read()
         self._joints = r.joints
@@ -531,7 +531,7 @@ def make_env(kind: str, task_cfg, task: str, period: float, bases=None, hosts=No
     carry ``base_error`` ((offset [2, 3] m, yaw [2] rad)). ``bases``: the robot side's world <-
     base transforms of ``ur`` and ``ur-sim`` (`RobotLimits.base_transforms`). ArmsError (one
     line) when it cannot be made."""
-    from mjx_envs.numpy_env import NumpyDualArmEnv
+    from mjx_envs.numpy_env import NumpyDualArmEnv  # lazy: MuJoCo; NumPy only at import
 
     if kind not in ARMS_KINDS:
         raise ArmsUsageError(f"--arms must be one of {', '.join(ARMS_KINDS)}, got {kind!r}")
@@ -539,11 +539,11 @@ def make_env(kind: str, task_cfg, task: str, period: float, bases=None, hosts=No
         raise ArmsUsageError("--dry-run needs --arms ur or ur-sim (the simulator moves nothing)")
     spec = NumpyDualArmEnv(task_cfg, task=task, exact=exact)
     if kind == "sim":
-        from daddpg_jax.deploy.ursim import sim_env
+        from daddpg_jax.deploy.ursim import sim_env  # lazy: ursim imports this module
 
         return sim_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact))
     if kind == "ur-sim":
-        from daddpg_jax.deploy.ursim import sim_ur_env
+        from daddpg_jax.deploy.ursim import sim_ur_env  # lazy: ursim imports this module
 
         offset, yaw = (None, None) if base_error is None else base_error
         return sim_ur_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact), period,
