@@ -69,7 +69,7 @@ def test_off_by_default_with_nothing_carried():
             if hasattr(cfg, name):
                 assert settings.test_overrides(task)[name] == 0.0
     env = mjx_envs.make("pickup", physics="c")
-    assert env.backend.rand is None and env.backend.np_ == 0
+    assert env.backend.rand is None and env.backend.n_rand_params == 0
     s = env.reset(jax.random.PRNGKey(0))
     assert "physics" not in s.info
     # reach has no object fields

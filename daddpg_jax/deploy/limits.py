@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from daddpg_jax.deploy import robot, ur3
 from daddpg_jax.deploy.safety import SafetyLimits
 from mjx_envs.settings import TaskConfig
 
@@ -236,11 +237,13 @@ class RobotLimits:
                 raise LimitsError(f"the service serves a {served!r} policy, not {want!r} "
                                   f"({where})")
         env = info.get("env")
-        dt = env.get("dt") if isinstance(env, Mapping) else None
-        if (isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt)
-                or abs(dt - self.control_period) > 1e-9 + 1e-6 * self.control_period):
-            raise LimitsError(f"the served policy's control period {dt!r} s differs from the "
-                              f"robot's {self.control_period:g} s")
+        served_period_s = env.get("dt") if isinstance(env, Mapping) else None
+        if (isinstance(served_period_s, bool) or not isinstance(served_period_s, (int, float))
+                or not math.isfinite(served_period_s)
+                or abs(served_period_s - self.control_period)
+                > 1e-9 + 1e-6 * self.control_period):
+            raise LimitsError(f"the served policy's control period {served_period_s!r} s differs "
+                              f"from the robot's {self.control_period:g} s")
         layout = (info.get("action_size"), info.get("num_arms", NUM_ARMS),
                   info.get("arm_action", ARM_ACTION))
         if layout != (NUM_ARMS * ARM_ACTION, NUM_ARMS, ARM_ACTION):
@@ -251,8 +254,6 @@ class RobotLimits:
     def base_transforms(self) -> np.ndarray:
         """World <- base transforms [2, 4, 4] of the arms (left, right): the calibration, else
         the nominal cell."""
-        from daddpg_jax.deploy import robot, ur3
-
         if self.calibration is None:
             return np.stack([ur3.base_transform(a) for a in robot.ARMS])
         out = np.zeros((NUM_ARMS, 4, 4))

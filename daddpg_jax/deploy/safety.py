@@ -85,11 +85,11 @@ class SafetyLimits:
         min_clearance: m (default: the env's ``arm_clearance``); deadline_s: default one
         control period; margin: shrinks the workspace boxes on every side, m.
         """
-        dt = float(env["dt"])
+        control_period_s = float(env["dt"])
         if max_speed is None:
             max_step = math.sqrt(3.0) * float(env["max_delta"])
         else:
-            max_step = float(max_speed) * dt
+            max_step = float(max_speed) * control_period_s
         low = np.asarray(env["workspace_low"], np.float32) + np.float32(margin)
         high = np.asarray(env["workspace_high"], np.float32) - np.float32(margin)
         if np.any(low > high):
@@ -98,7 +98,7 @@ class SafetyLimits:
             min_clearance = env.get("arm_clearance", _DEFAULTS.arm_clearance)
         return cls(workspace_low=low, workspace_high=high, max_step=max_step,
                    min_clearance=float(min_clearance),
-                   deadline_s=dt if deadline_s is None else float(deadline_s),
+                   deadline_s=control_period_s if deadline_s is None else float(deadline_s),
                    finger_low=0.0,
                    finger_high=float(env.get("finger_stroke", _DEFAULTS.finger_stroke)))
 

@@ -6,7 +6,7 @@
 RUN_DIR layout::
 
     config.json          TrainConfig, env overrides, package versions, device, git revision
-    metrics.csv          one row per epoch (columns: METRIC_COLUMNS)
+    metrics.csv          one row per epoch (columns: run_record.METRIC_COLUMNS)
     learning_curve.png   test success vs env steps
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
     checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
@@ -26,11 +26,8 @@ without any complete checkpoint starts again from epoch 0.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -46,31 +43,24 @@ from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.train import StageClock, make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import distributed as dist
-from daddpg_jax.running import resources, tracking
+from daddpg_jax.running import resources, run_record, tracking
 from daddpg_jax.running.levels import reaches
+from daddpg_jax.running.run_record import (
+    RunLog,
+    check_resume_layout,
+    prepare_run_dir,
+    resume,
+    success_of,
+    warn,
+)
 from mjx_envs import settings
 from mjx_envs.physics.backends import default_chunk
 from mjx_envs.schema import ConfigError
 
-METRIC_COLUMNS = (
-    "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
-    "test_final_distance_left", "test_final_distance_right", "train_success_rate",
-    "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
-    "updates_per_s", "bc_loss", "q_filter_pass", "rollout_time", "update_time", "eval_time",
-    "train_physics_fault_rate", "test_physics_fault_rate",
-)
-"""Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
-rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
-rollout_time, update_time and eval_time split the epoch's wall seconds, measured on the host:
-rollout_time sums, over the epoch's cycles, the time from the previous cycle's end to the
-cycle's rollout done (envs and actors); update_time the time from there to its updates done
-(buffer insert, normalizer update, gradient updates). Both come from host calls ordered inside
-the compiled cycle (``algo.train.StageClock``; on several devices, device 0's); the first
-epoch's rollout_time holds the compilation. eval_time: the evaluation after the epoch.
-train_/test_physics_fault_rate: the fraction of the epoch's training / test episodes with a
-step whose ``metrics["physics_ok"]`` is 0 (the engine froze or diverged; NaN for an env that
-does not report it). CSVs written before a column existed lack it and are rewritten with it
-(blank) on --resume."""
+# defined in run_record, imported from here by the CLI, the analysis tools and the tests
+METRIC_COLUMNS = run_record.METRIC_COLUMNS
+restore_readable = run_record.restore_readable
+_write_rows = run_record.write_rows
 
 PHYSICS_FAULT_WARN = 0.01
 """an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
@@ -114,51 +104,16 @@ class RunResult:
                 f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}{why}")
 
 
-def warn(msg: str) -> None:
-    """One line on stderr (from process 0 only in a multi-process job)."""
-    if dist.is_primary():
-        print(f"warning: {msg}", file=sys.stderr, flush=True)
 
 
-def _read_rows(path) -> list[dict]:
-    """metrics.csv's rows; a torn row (cut short by a kill while an older version appended it)
-    is left out."""
-    if not os.path.exists(path):
-        return []
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    good = []
-    for r in rows:
-        try:
-            int(r["epoch"])
-        except (KeyError, TypeError, ValueError):
-            continue
-        if None not in r and None not in r.values():
-            good.append(r)
-    return good
 
 
-def _write_rows(path, rows: list[dict]) -> None:
-    """Rewrites metrics.csv whole through a temporary file and os.replace: a kill at any moment
-    leaves the old file or the new one."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, lineterminator="\r\n")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: row.get(k, "") for k in METRIC_COLUMNS})
-    ckpt.write_atomic(path, buf.getvalue())
 
 
 def _scalar(x) -> float:
     return float(np.mean(np.asarray(x)))
 
 
-def _success(row) -> float:
-    try:
-        v = float(row["test_success_rate"])
-    except (KeyError, TypeError, ValueError):
-        return math.nan
-    return v
 
 
 def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
@@ -196,42 +151,6 @@ def check_physics_backend(physics: str | None, num_envs: int,
             f"CPU default) or fewer than {MJX_CPU_MAX_BATCH} envs")
 
 
-@dataclass
-class _Log:
-    """What a run has written: its CSV rows, the best test success among them (the one in
-    checkpoints_best/), and the wall time of the epochs before this call."""
-    run_dir: str
-    rows: list
-    best: float = -math.inf
-    wall_offset: float = 0.0
-
-    @property
-    def epoch(self) -> int:
-        return int(self.rows[-1]["epoch"]) if self.rows else 0
-
-    def commit(self, cfg: TrainConfig, state, row: dict) -> None:
-        """The end of an epoch: CSV row (atomic rewrite), checkpoint, then the best one. In a
-        multi-process job every process saves its part of the checkpoint; process 0 alone
-        writes the CSV and the best checkpoint's copy."""
-        self.rows.append(row)
-        primary = dist.is_primary()
-        if primary:
-            _write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
-        epoch = int(row["epoch"])
-        ckpt.save(self.run_dir, state, epoch, save_buffer=cfg.save_buffer,
-                  keep=cfg.keep_checkpoints)   # CheckpointSaveError: one line, run resumable
-        if _success(row) > self.best:
-            if primary:
-                try:
-                    ckpt.save_best(self.run_dir, epoch)
-                except OSError as e:
-                    raise CheckpointSaveError(
-                        f"could not copy checkpoint {epoch} to "
-                        f"{ckpt.checkpoint_dir(self.run_dir, best=True)} ({ckpt.root_cause(e)});"
-                        f" free space or fix the cause, then resume with daddpg-train --resume "
-                        f"{self.run_dir}") from e
-            self.best = _success(row)
-        dist.barrier(f"daddpg-epoch-{epoch}")
 
 
 @dataclass
@@ -301,7 +220,7 @@ def train(cfg: TrainConfig, options: RunOptions) -> RunResult:
                                 stop_at_success=opts.stop_at_success))
     if opts.make_env is None:
         check_physics_backend(cfg.physics, cfg.num_envs)
-    dist.on_primary(_prepare_run_dir, opts.run_dir, opts.resume, opts.force,
+    dist.on_primary(prepare_run_dir, opts.run_dir, opts.resume, opts.force,
                     errors=(RunDirError, ValueError, OSError))
     try:
         return _train(cfg, opts)
@@ -315,7 +234,7 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     run_dir = opts.run_dir
     layout = dist.current_layout() if dist.is_multiprocess() else None
     if opts.resume:
-        _check_resume_layout(run_dir, layout)
+        check_resume_layout(run_dir, layout)
     if opts.make_env is None:
         env = make_env(cfg, opts.env_overrides)
         eval_env = make_eval_env(cfg, opts.env_overrides)
@@ -331,9 +250,9 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     check_memory(fns, cfg)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     if opts.resume:
-        state, log = _resume(run_dir, state)
+        state, log = resume(run_dir, state)
     else:
-        log = _Log(run_dir, [])
+        log = RunLog(run_dir, [])
         if dist.is_primary():
             extra = {"distributed": layout.to_dict()} if layout is not None else {}
             ckpt.save_config(run_dir, cfg, env_overrides=opts.env_overrides,
@@ -373,7 +292,7 @@ class _Run:
     eval_env: Any
     fns: Any
     clock: StageClock
-    log: _Log
+    log: RunLog
     trackers: list
 
     def epochs(self, state):
@@ -399,7 +318,7 @@ class _Run:
             if opts.time_budget_s is not None and dist.from_primary(
                     time.perf_counter() - t_start >= opts.time_budget_s):
                 return state, "time_budget"
-            if opts.stop_at_success is not None and reaches(_success(row),
+            if opts.stop_at_success is not None and reaches(success_of(row),
                                                             opts.stop_at_success):
                 return state, "stop_at_success"
         return state, "epochs"
@@ -499,193 +418,20 @@ def _warn_physics_faults(row: dict) -> None:
              "(timestep, n_substeps, max_delta)")
 
 
-def _check_resume_layout(run_dir: str, layout) -> None:
-    """A run resumes on the process layout it was started on (a buffer saved on n devices
-    restores on n devices; the processes' devices hold its shards)."""
-    try:
-        _, payload = ckpt.load_config(run_dir)
-    except (OSError, ValueError, KeyError):
-        return   # _resume reports what is missing
-    saved = payload.get("distributed")
-    now = layout.to_dict() if layout is not None else None
-    if saved != now:
-        def describe(d):
-            return ("one process" if d is None else
-                    f"{d['num_processes']} processes with {d['process_devices']} devices")
-        raise RunDirError(f"{run_dir!r} was trained by {describe(saved)}; this job has "
-                          f"{describe(now)}: resume it on the same layout")
 
 
-def _prepare_run_dir(run_dir: str, resume: bool, force: bool) -> None:
-    """Checks run_dir before anything compiles and takes its lock (held until `train` returns;
-    RunLockedError when another process holds it); with force deletes the run in it."""
-    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
-        raise RunDirError(f"{run_dir!r} is a file, not a run directory")
-    if resume:
-        if force:
-            raise ValueError("resume and force exclude each other")
-        if not os.path.exists(os.path.join(run_dir, "config.json")):
-            raise RunDirError(f"{run_dir!r} has no config.json: not a training run directory "
-                              "(nothing to resume)")
-    ckpt.lock_run_dir(run_dir)
-    if resume:
-        return
-    try:
-        _prepare_new_run_dir(run_dir, force)
-    except BaseException:
-        ckpt.unlock_run_dir(run_dir)
-        raise
 
 
-def _prepare_new_run_dir(run_dir: str, force: bool) -> None:
-    if force:
-        ckpt.wipe_run(run_dir)
-    else:
-        steps = ckpt.all_steps(run_dir) or ckpt.all_steps(run_dir, best=True)
-        if steps:
-            raise RunDirError(f"{run_dir!r} already holds a run (checkpoints {steps}); resume "
-                              "it, or delete it first (force=True, daddpg-train --force)")
-        ckpt.remove_run_files(run_dir)   # leftovers of a run killed in its first epoch
-    os.makedirs(run_dir, exist_ok=True)
 
 
-def _restore_newest_readable(run_dir: str, template, steps: list):
-    """(state, step) of the newest of `steps` that restores, and the [(step, error)] of the
-    newer ones that did not (each warned about). In a multi-process job the processes agree:
-    the newest step that every process can read."""
-    bad = []
-    for step in reversed(steps):
-        why = None
-        try:
-            ckpt.verify(run_dir, step)
-        except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
-            why = ckpt.root_cause(e)
-        failed = dist.agree_ok(why is None)
-        if failed and why is None:
-            why = f"unreadable on process {', '.join(map(str, failed))}"
-        if not failed:
-            try:
-                state, step = ckpt.restore(run_dir, template, step)
-                return state, step, bad
-            except Exception as e:  # noqa: BLE001 (as above)
-                if dist.is_multiprocess():
-                    raise
-                why = ckpt.root_cause(e)
-        _quiet_failed_reads()
-        warn(f"checkpoint {step} ({ckpt.step_dir(run_dir, step)}) cannot be read "
-             f"({why}); trying an older one")
-        bad.append((step, why))
-    return None, None, bad
 
 
-def restore_readable(run_dir: str, template, step: int | None = None, best: bool = False):
-    """(state, step) for a reader of a run (export, evaluation): checkpoint `step`, or (None)
-    the newest readable one, older ones tried after a warning naming each unreadable one, as
-    `--resume` does; nothing is deleted. CheckpointError (one line) when none can be read."""
-    steps = [int(step)] if step is not None else ckpt.all_steps(run_dir, best)
-    bad = []
-    for s in reversed(steps):
-        try:
-            ckpt.verify(run_dir, s, best)
-            return ckpt.restore(run_dir, template, s, restore_buffer=False, best=best)
-        except Exception as e:  # noqa: BLE001 (TensorStore, orbax, OS errors: all unreadable)
-            why = ckpt.root_cause(e)
-        _quiet_failed_reads()
-        bad.append((s, why))
-        if s != steps[0]:
-            warn(f"checkpoint {s} ({ckpt.step_dir(run_dir, s, best)}) cannot be read "
-                 f"({why}); using an older one")
-    if not bad:
-        raise CheckpointError(f"run {run_dir} has no checkpoint")
-    if step is not None:
-        raise CheckpointError(f"checkpoint {step} of {run_dir} cannot be read ({bad[0][1]})")
-    tried = ", ".join(str(s) for s, _ in bad)
-    raise CheckpointError(f"no checkpoint of {run_dir} can be read (tried {tried}; newest: "
-                          f"{bad[0][1]})")
 
 
-def _quiet_failed_reads() -> None:
-    """After a failed restore, orbax's other reads of that checkpoint fail too, and Python
-    prints each as 'Exception ignored in: <coroutine ...>' with a long traceback when it
-    collects them (at exit); the warning already said it. Drops those, nothing else."""
-    prev = sys.unraisablehook
-    if getattr(prev, "_daddpg_quiet", False):
-        return
-
-    def hook(u):
-        name = getattr(getattr(u.object, "cr_code", None), "co_filename", "")
-        if "orbax" in name or "tensorstore" in name:
-            return
-        prev(u)
-
-    hook._daddpg_quiet = True
-    sys.unraisablehook = hook
 
 
-def _resume(run_dir: str, template):
-    """(state restored from the newest readable checkpoint, its _Log). metrics.csv is rewritten
-    without the rows of later epochs (a kill between the CSV write and the checkpoint, or an
-    unreadable checkpoint), newer unreadable checkpoints are deleted, and checkpoints_best/ is
-    made to agree with the CSV. No complete checkpoint: warns and starts from epoch 0."""
-    metrics_path = os.path.join(run_dir, "metrics.csv")
-    primary = dist.is_primary()
-    dist.on_primary(ckpt.remove_partial, run_dir)
-    rows = _read_rows(metrics_path)
-    # process 0's list on every process, so that all of them try the same steps in the same
-    # order (each step's readability is then agreed on by all: _restore_newest_readable)
-    steps = dist.from_primary(ckpt.all_steps(run_dir))
-    if not steps:
-        warn(f"{run_dir} has no complete checkpoint (the run was stopped during its first "
-             "epoch); starting it again from epoch 0")
-        if primary:
-            ckpt.remove_steps(run_dir, ckpt.all_steps(run_dir, best=True), best=True)
-            _write_rows(metrics_path, [])
-        dist.barrier("daddpg-resume")
-        return template, _Log(run_dir, [])
-    state, step, bad = _restore_newest_readable(run_dir, template, steps)
-    if state is None:
-        raise CheckpointError(
-            f"no checkpoint of {run_dir} can be read (tried {', '.join(str(s) for s, _ in bad)};"
-            f" newest: {bad[0][1]}); if --set changed a field that fixes array shapes "
-            "(hidden, buffer_size, ...), resume without it, else start the run again with "
-            "--force")
-    if bad:
-        warn(f"resuming from checkpoint {step}; deleting the unreadable checkpoint(s) "
-             f"{', '.join(str(s) for s, _ in bad)}")
-    rows = [r for r in rows if int(r["epoch"]) <= step]
-    log = _Log(run_dir, rows, wall_offset=float(rows[-1]["wall_time"]) if rows else 0.0)
-    if primary:
-        ckpt.remove_steps(run_dir, [s for s, _ in bad])
-        _write_rows(metrics_path, rows)
-        log.best = _reconcile_best(run_dir, rows)
-    dist.barrier("daddpg-resume")
-    return state, log
 
 
-def _reconcile_best(run_dir: str, rows: list) -> float:
-    """Makes checkpoints_best/ hold the checkpoint of the CSV row with the best test success
-    (earliest of ties), copying it from checkpoints/ if a kill came before the copy; if it is
-    on disk nowhere, the best one that is (with a warning). Returns its test success."""
-    cands = sorted(((_success(r), int(r["epoch"])) for r in rows if not math.isnan(_success(r))),
-                   key=lambda c: (-c[0], c[1]))
-    best_steps = set(ckpt.all_steps(run_dir, best=True))
-    main_steps = set(ckpt.all_steps(run_dir))
-    for i, (value, epoch) in enumerate(cands):
-        if epoch not in best_steps and epoch not in main_steps:
-            continue
-        if epoch not in best_steps:
-            ckpt.save_best(run_dir, epoch)
-        ckpt.remove_steps(run_dir, best_steps - {epoch}, best=True)
-        if i > 0:
-            warn(f"the best checkpoint (epoch {cands[0][1]}, test success {cands[0][0]:.3f}) "
-                 f"is not on disk; epoch {epoch} (test success {value:.3f}) is kept as the "
-                 "best one instead")
-        return value
-    ckpt.remove_steps(run_dir, best_steps, best=True)
-    if cands:
-        warn(f"the best checkpoint (epoch {cands[0][1]}) is not on disk, nor any other epoch "
-             "of metrics.csv; the next epochs start the best checkpoint again")
-    return -math.inf
 
 
 def _epoch_row(cfg: TrainConfig, env, epoch: int, env_steps: int, updates: int, wall: float,

@@ -38,11 +38,11 @@ def bench(url: str, requests: int, clients: int, warmup: int, obs_size: int, see
         for k in range(per[i]):
             t0 = time.perf_counter()
             a, info = c.act(obs[k % 64], goal[k % 64])
-            dt = time.perf_counter() - t0
+            elapsed_s = time.perf_counter() - t0
             if a is None:
                 errors[i] += 1
                 continue
-            rtts[i].append(dt * 1e3)
+            rtts[i].append(elapsed_s * 1e3)
             server_ms[i].append(info.get("server_ms") or 0.0)
         c.close()
 

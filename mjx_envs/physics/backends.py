@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from mujoco import rollout
 
 from mjx_envs import randomize, settings
 
@@ -84,6 +85,7 @@ def import_mjx():
     buf = io.StringIO()
     try:
         with contextlib.redirect_stdout(buf):
+            # lazy: MJX loads only when an MJX backend is built, under this stdout filter
             from mujoco import mjx
     finally:
         for line in buf.getvalue().splitlines():
@@ -167,8 +169,6 @@ _POOL_LOCK = threading.Lock()
 
 
 def _rollout_pool(nthread: int):
-    from mujoco import rollout
-
     if nthread not in _POOLS:
         pool = rollout.Rollout(nthread=nthread)
         atexit.register(pool.close)
@@ -209,9 +209,6 @@ class CBackend:
 
     def __init__(self, model: mujoco.MjModel, n_substeps: int, nthread: int | None = None,
                  rand: randomize.ModelIndex | None = None):
-        from mujoco import rollout
-
-        self._rollout = rollout
         self.mj_model = model
         self.n_substeps = int(n_substeps)
         self.nthread = int(nthread or max(1, os.cpu_count() or 1))
@@ -235,7 +232,8 @@ class CBackend:
         self._sl_act = slice(i, i + k)
         self._i_time = self._off["mjSTATE_TIME"][0]
         self.rand = rand
-        self.np_ = randomize.PARAMS if rand is not None else 0  # parameters per env
+        # randomized parameters per env (0: no randomization)
+        self.n_rand_params = randomize.PARAMS if rand is not None else 0
         self._env_models: dict = {}  # batch size -> (per-env MjModel copies, their params)
 
     def models_for(self, params) -> list:
@@ -343,7 +341,7 @@ class CBackend:
         """_host_step on one packed float32 array [..., 1 + nq + nv + na + nu + 3 nmocap]
         (time, qpos, qvel, act, ctrl, mocap) -> [..., 1 + nq + nv + na + ns + 1] (time, qpos,
         qvel, act, sensordata, ok): one argument and one result per callback instead of six of
-        each, which halves JAX's per-call transfer overhead at small batches."""
+        each, fewer transfers per call (measured: docs/BENCHMARKS.md, "Profiling pass (CPU)")."""
         x = np.asarray(x)
         lead = x.shape[:-1]
         parts = np.split(x, np.cumsum([1, self.nq, self.nv, self.na, self.nu,
@@ -351,7 +349,7 @@ class CBackend:
         time, qpos, qvel, act, ctrl, mocap, params = parts
         out = self._host_step(time[..., 0], qpos, qvel, act, ctrl,
                               mocap.reshape(lead + (self.nmocap, 3)),
-                              params if self.np_ else None)
+                              params if self.n_rand_params else None)
         t, q, v, a, sens, ok = out
         return np.concatenate([t[..., None], q, v, a, sens, ok[..., None]], axis=-1)
 
@@ -359,7 +357,7 @@ class CBackend:
         ctrl = jnp.asarray(ctrl, jnp.float32)
         mocap_pos = jnp.asarray(mocap_pos, jnp.float32)
         parts = [data.time[None], data.qpos, data.qvel, data.act, ctrl, mocap_pos.reshape(-1)]
-        if self.np_:
+        if self.n_rand_params:
             if params is None:
                 raise ValueError("this backend was built with randomization: step needs params")
             parts.append(jnp.asarray(params, jnp.float32).reshape(-1))
