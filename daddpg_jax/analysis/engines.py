@@ -75,6 +75,7 @@ def parse_engines(spec: str, backend: str | None = None) -> tuple[str, ...]:
     """``--physics`` value -> engine names: one (as given, ``auto`` included) or two distinct
     engines to compare (``auto`` resolved). Raises ConfigError (one line) for unknown or
     repeated names, more than two, and ``warp`` (CUDA only; refused on a CPU)."""
+    # lazy: backends imports JAX (daddpg-evaluate --help stays JAX-free)
     import jax
 
     from mjx_envs.physics.backends import default_physics

@@ -48,6 +48,8 @@ from typing import Any
 
 import numpy as np
 
+from mjx_envs import observation as obs_lib
+from mjx_envs import settings
 from mjx_envs.settings import MJX_CPU_CHUNK  # noqa: F401 (part of this module's interface)
 
 # MuJoCo picks its OpenGL backend when it is first imported: headless EGL unless told otherwise
@@ -99,8 +101,6 @@ class Policy:
 def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
     """A run's env overrides for test (evaluation) episodes: the standard task, i.e. the
     training-only task options switched off (``mjx_envs.settings.test_overrides``)."""
-    from mjx_envs import settings
-
     return {**(env_overrides or {}), **settings.test_overrides(task)}
 
 
@@ -111,6 +111,7 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     ``best`` the run's best checkpoint (the epoch of its best test success). The env simulates
     the physics version the run was trained on, or ``physics_version`` (one warning line when
     that acts unlike the run's)."""
+    # lazy: these import JAX and MuJoCo (daddpg-evaluate --help stays JAX-free)
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
     from daddpg_jax.running.runner import make_env, restore_readable
@@ -179,8 +180,7 @@ _ROLLOUTS: dict = {}
 def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
     """The compiled rollout of ``n`` episodes: (state, reset keys [n, *key_shape]) -> (per-step
     records [T, n, ...], first states, desired goals [n, 2, 3])."""
-    import jax
-
+    import jax  # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
 
     key_ = (id(policy.env), id(policy.fns), n, tuple(key_shape), np.dtype(key_dtype).str)
     if key_ in _ROLLOUTS:
@@ -194,10 +194,10 @@ def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
 def _rollout_program(policy: Policy):
     """(state, reset keys [n, 2]) -> (per-step records [T, n, ...], first states, desired goals
     [n, 2, 3]): the function that ``_rollout_fn`` compiles."""
+    # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
     import jax
 
     from daddpg_jax.algo import acting
-    from mjx_envs import observation as obs_lib
 
     env, act = policy.env, policy.fns.act
 
@@ -231,7 +231,7 @@ def run_episodes(policy: Policy, keys, chunk: int | None = None,
                  watchdog: float | None = None):
     """Rolls out one episode per reset key (``keys`` [N, 2]) in chunks of ``chunk`` (None: all
     at once). Returns NumPy (records [T, N, ...], first states [N, ...], goals [N, 2, 3])."""
-    import jax
+    import jax  # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
 
     keys = np.asarray(keys)
     n = len(keys)
@@ -263,6 +263,7 @@ def check_episodes_fit(policy: Policy, episodes: int) -> None:
     """ConfigError (one line) when the outputs of `episodes` episodes (kept on the host, every
     chunk's) and their env states cannot fit in memory, sized from shapes (nothing is
     allocated or compiled): call before making the episodes' keys."""
+    # lazy: resources imports JAX (daddpg-evaluate --help stays JAX-free)
     import jax
 
     from daddpg_jax.running import resources
@@ -303,6 +304,7 @@ def evaluate(policy: Policy, episodes: int = 100, seed: int | None = None,
     comparison: ``qpos`` [N, T+1, nq], ``mocap`` [N, T+1, 2, 3], ``object`` [N, T+1, 3] (object
     centre; zeros without an object), ``grip`` [N, T+1, 2, 3], ``goal`` [N, 2, 3],
     ``success`` [N], ``arm_contact`` [N], ``physics_fault`` [N], ``final_distance`` [N, 2]."""
+    # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
     import jax
 
     from daddpg_jax.algo import acting
@@ -403,7 +405,7 @@ def render_frames(policy: Policy, traj: dict, n_episodes: int = 3, width: int = 
     with ``hold`` copies of its last frame framed green (success) or red (failure)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     try:
-        from mjx_envs.render import Renderer
+        from mjx_envs.render import Renderer  # lazy: MuJoCo's renderer, only for a video
 
         r = Renderer(policy.env, width=width, height=height)
     except Exception as e:  # noqa: BLE001 (no EGL, no GL context, ...)
@@ -443,7 +445,7 @@ def add_video(summary: dict, policy: Policy, traj: dict, path: str, n_episodes: 
 def write_frames(path: str, frames: list, fps: int) -> str:
     """Writes RGB frames as an mp4 (imageio + imageio-ffmpeg), or a GIF when `path` ends in
     .gif or no mp4 writer is installed (beside `path`). Returns the path written."""
-    import imageio.v2 as imageio
+    import imageio.v2 as imageio  # optional extra [video]
 
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     if path.lower().endswith(".gif"):

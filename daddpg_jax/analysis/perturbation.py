@@ -16,6 +16,7 @@ import itertools
 import json
 import os
 
+from daddpg_jax.analysis import evaluation
 from mjx_envs import perturb, schema, settings
 
 COLUMNS = ("success_rate", "success_ci95_low", "success_ci95_high", "arm_contact_rate",
@@ -81,8 +82,7 @@ def evaluate_grid(policy, grid: dict[str, list], episodes: int = 100, seed: int 
     (`daddpg_jax.analysis.evaluation.evaluate` on the standard task with the perturbation at
     exact values; ``eval_opts``: its ``chunk`` / ``watchdog``). report: optional callable(row)
     after each point (progress)."""
-    from daddpg_jax.analysis import evaluation
-    from daddpg_jax.running.runner import make_env
+    from daddpg_jax.running.runner import make_env  # lazy: imports JAX and MuJoCo
 
     cfg, payload = policy.cfg, policy.payload
     base = evaluation.standard_env_overrides(cfg.task, payload.get("env_overrides"))
@@ -108,7 +108,7 @@ def evaluate_grid(policy, grid: dict[str, list], episodes: int = 100, seed: int 
 def write_outputs(rows: list[dict], grid: dict[str, list], out_dir: str, meta: dict) -> dict:
     """perturbation.csv, perturbation.json (meta + rows) and perturbation.png in out_dir;
     returns their paths."""
-    from daddpg_jax.running.checkpoint import write_atomic
+    from daddpg_jax.running.checkpoint import write_atomic  # lazy: imports JAX
 
     os.makedirs(out_dir, exist_ok=True)
     paths = {ext: os.path.join(out_dir, f"perturbation.{ext}") for ext in ("csv", "json", "png")}
@@ -155,10 +155,11 @@ def run_items(policy, items: list[str], episodes: int, seed: int | None, out_dir
 def perturbation_figure(rows: list[dict], grid: dict[str, list], title: str = ""):
     """Success (with its 95 % Wilson interval) against each perturbation, the others at their
     first value; axes with units, integer ticks for integer fields."""
+    # lazy: matplotlib loads only when a figure is drawn (daddpg-evaluate --help stays light)
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after the backend is chosen
     from matplotlib.ticker import MaxNLocator
 
     keys = list(grid)
@@ -185,7 +186,7 @@ def perturbation_figure(rows: list[dict], grid: dict[str, list], title: str = ""
 
 
 def _plot(rows: list[dict], grid: dict[str, list], path: str, title: str) -> None:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: as in perturbation_figure
 
     fig = perturbation_figure(rows, grid, title)
     fig.savefig(path, dpi=100)

@@ -10,6 +10,8 @@ figures (the error bars of a comparison between variants).
 
 from __future__ import annotations
 
+import csv
+import json
 import math
 import os
 from collections.abc import Sequence
@@ -25,10 +27,10 @@ SUMMARY_METRICS = ("final_test_success", "last_test_success", "best_test_success
 
 
 def _mpl():
-    import matplotlib
+    import matplotlib  # lazy: loads only when a figure is drawn (CLI --help stays light)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after the backend is chosen
 
     return plt
 
@@ -97,8 +99,6 @@ def plot_learning_curve(rows: Sequence[dict], out: str, title: str = "") -> str:
 
 def read_metrics(path: str) -> list[dict]:
     """Rows of ``metrics.csv`` from a run directory (or the CSV path itself)."""
-    import csv
-
     csv_path = os.path.join(path, "metrics.csv") if os.path.isdir(path) else path
     if not os.path.exists(csv_path):
         raise FileNotFoundError(f"{path}: no metrics.csv")
@@ -138,8 +138,6 @@ def repeated_seeds(runs: dict[str, Sequence[str]]) -> list[str]:
 
 def run_config(path: str) -> dict:
     """The ``config`` section of a run's config.json ({} when it has none)."""
-    import json
-
     run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
     try:
         with open(os.path.join(run_dir, "config.json")) as f:
@@ -152,8 +150,6 @@ def run_label(path: str) -> str:
     """Default label of a run: ``task/algo`` (+ ``/N envs`` when not 2, + ``+N demos`` with
     demonstrations) from its config.json, else the directory name. Runs that differ only in
     seed get the same label."""
-    import json
-
     run_dir = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
     cfg_path = os.path.join(run_dir, "config.json")
     try:

@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from daddpg_jax.algo.config import TrainConfig, preset, preset_env
-from daddpg_jax.analysis.plotting import plot_learning_curve
+from daddpg_jax.analysis.plotting import plot_learning_curve, plot_runs, read_metrics, run_figures
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.levels import first_reaching
 from daddpg_jax.running.runner import RunOptions, train
@@ -66,8 +66,6 @@ def experiments(seeds: int, algos: Sequence[str] | None = None, ablations: bool 
 
 
 def final_row(task: str, exp: Experiment, seed: int, rows: Sequence[dict]) -> dict:
-    from daddpg_jax.analysis.plotting import run_figures
-
     figs = run_figures(rows) if rows else {}
     last = rows[-1] if rows else {}
     return {
@@ -99,8 +97,6 @@ def run_one(task: str, exp: Experiment, seed: int, run_dir: str, env_steps: int,
     resume = ckpt.latest_step(run_dir) is not None
     used = 0.0
     if resume:
-        from daddpg_jax.analysis.plotting import read_metrics
-
         path = os.path.join(run_dir, "metrics.csv")
         rows = read_metrics(path) if os.path.exists(path) else []
         used = float(rows[-1]["wall_time"]) if rows else 0.0
@@ -125,8 +121,6 @@ def run_set(task: str, out_dir: str, seeds: int = 3, algos: Sequence[str] | None
             env_overrides: dict | None = None, log: Callable[[str], None] = print,
             first_seed: int = 0) -> dict:
     """Runs the set and writes final.csv, curves.png, ablations.png and summary.json."""
-    from daddpg_jax.analysis.plotting import plot_runs
-
     task_dir = os.path.join(out_dir, task)
     os.makedirs(os.path.join(task_dir, "runs"), exist_ok=True)
     finals, groups = [], {}

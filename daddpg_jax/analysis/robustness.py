@@ -83,10 +83,10 @@ def plot(keys: list[str], rows: list[dict], at: dict[str, float], path: str,
          title: str = "") -> str:
     """Mean success ± std against each grid key, one line per group; the other keys at `at`'s
     values (or at the first value of the grid)."""
-    import matplotlib
+    import matplotlib  # lazy: loads only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after the backend is chosen
 
     groups = list(dict.fromkeys(r["group"] for r in rows))
     first = {k: float(rows[0][k]) for k in keys}

@@ -7,6 +7,7 @@ Example: MUJOCO_GL=egl daddpg-render --task reach --out docs/scene_reach.png
 import argparse
 import os
 
+import mjx_envs
 from mjx_envs.settings import DEFAULT_TASK, TASKS
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -24,8 +25,6 @@ def main(argv=None) -> int:
     # lazy: JAX and the renderer load only for a render, not for --help or argument errors
     import imageio.v3 as iio
     import jax
-
-    import mjx_envs
 
     env = mjx_envs.make(args.task, physics="c")
     state = env.reset(jax.random.PRNGKey(args.seed))

@@ -54,7 +54,7 @@ _EXTRA = "pip install 'daddpg-jax[onnx]'"
 
 def _onnx():
     try:
-        import onnx  # optional extra
+        import onnx  # optional extra [onnx]
     except ImportError:
         raise PolicyFormatError(f"ONNX policies need the onnx package: {_EXTRA}") from None
     return onnx
@@ -64,7 +64,7 @@ def build_model(arrays: dict[str, Any]):
     """The ONNX model (``onnx.ModelProto``) of an export's arrays (`policy_arrays`: actor
     weights, normalizer statistics, ``meta``)."""
     onnx = _onnx()
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper, numpy_helper  # optional extra [onnx]
 
     meta = json.loads(str(arrays["meta"]))
     variant = variants.get(meta["algo"])
@@ -140,7 +140,7 @@ def write_onnx(arrays: dict[str, Any], out) -> str:
 
 def _arrays_of(model) -> dict[str, Any]:
     """The export's arrays (the initializers named as in the .npz) and ``meta`` of a model."""
-    from onnx import numpy_helper
+    from onnx import numpy_helper  # optional extra [onnx]
 
     props = {p.key: p.value for p in model.metadata_props}
     out: dict[str, Any] = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer

@@ -23,6 +23,7 @@ import io
 import json
 import math
 import os
+import tempfile
 import zipfile
 from collections.abc import Mapping
 from typing import Any
@@ -185,8 +186,6 @@ def write_policy_file(out: str, write) -> str:
     """Writes a policy file atomically: ``write(f)`` fills a new temporary file of an
     unpredictable name beside ``out`` (O_EXCL: nothing planted there is written through), which
     is then renamed to ``out``. Returns ``out``."""
-    import tempfile
-
     d = os.path.dirname(os.path.abspath(out))
     os.makedirs(d, exist_ok=True)
     suffix = os.path.splitext(out)[1]

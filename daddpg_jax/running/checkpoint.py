@@ -34,8 +34,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
+import tensorstore as ts
 from flax import serialization
 
+from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.sharding import on_mesh
 from daddpg_jax.running.host import host_info
 from mjx_envs.settings import PHYSICS_VERSION, physics_version_note, recorded_physics_version
@@ -410,8 +412,6 @@ def verify(run_dir, step: int, best: bool = False) -> None:
     metadata; raises the first error (e.g. ValueError 'OUT_OF_RANGE: Error reading ...' for a
     truncated data file). `restore` would fail on the same checkpoint, but from inside orbax's
     concurrent reads, whose other failures then print pages of tracebacks."""
-    import tensorstore as ts
-
     d = step_dir(run_dir, step, best)
     with open(os.path.join(d, "_CHECKPOINT_METADATA")) as f:
         json.load(f)
@@ -548,8 +548,6 @@ def load_config(run_dir):
     A file that is not JSON, not an object with a 'config' object, or holds invalid values
     raises :class:`ConfigFileError` (one line naming the file); a missing one
     FileNotFoundError."""
-    from daddpg_jax.algo.config import TrainConfig
-
     path = os.path.join(os.fspath(run_dir), "config.json")
     try:
         with open(path) as f:

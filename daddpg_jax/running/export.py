@@ -38,10 +38,16 @@ import json
 import os
 from typing import Any
 
+import jax
 import numpy as np
 
+from daddpg_jax.algo import normalizer as norm
 from daddpg_jax.algo import variants
+from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.deploy.policy import FORMAT_VERSION, write_policy_file
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.running.runner import make_env, restore_readable
+from mjx_envs import observation as obs_lib
 from mjx_envs import schema
 from mjx_envs.settings import PHYSICS_VERSION
 
@@ -74,11 +80,6 @@ def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]
     ``state``: a ``daddpg_jax.algo.train.TrainState`` (only ``agent.actor`` and the normalizers are
     read); ``cfg``: its TrainConfig; ``env``: the env it was trained on.
     """
-    import jax
-
-    from daddpg_jax.algo import normalizer as norm
-    from mjx_envs import observation as obs_lib
-
     variant = variants.get(cfg.algo)
     actor = jax.device_get(state.agent.actor)
     layers = actor["params"]
@@ -174,12 +175,6 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
 
     Raises ExportError with a clear message when the run has no config or no checkpoint.
     """
-    import jax
-
-    from daddpg_jax.algo.train import make_train_fns
-    from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.runner import make_env, restore_readable
-
     run_dir = os.fspath(run_dir)
     if best and step is not None:
         raise ExportError("give a checkpoint step or best, not both")

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import os
 
+import jax
+import numpy as np
+
 from mjx_envs.schema import ConfigError
 
 
 def tree_bytes(tree) -> int:
     """Total bytes of the arrays (or ``jax.ShapeDtypeStruct``s) of a pytree."""
-    import jax
-    import numpy as np
-
     return int(sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize
                    for x in jax.tree.leaves(tree) if hasattr(x, "shape")))
 
@@ -54,8 +54,6 @@ def _host_available() -> int | None:
 def available_bytes(device=None) -> int | None:
     """Bytes the arrays of `device` (default: JAX's first device) may take: an accelerator's
     ``bytes_limit`` minus what is in use, else the host's available memory; None if unknown."""
-    import jax
-
     device = device or jax.devices()[0]
     if device.platform != "cpu":
         try:

@@ -61,6 +61,7 @@ def _value(v) -> float:
 def row_scalars(row: dict) -> dict[str, float]:
     """{tag: value} of a metrics.csv row: every column of METRIC_COLUMNS but env_steps (the
     x axis), except those that are NaN in this row (e.g. bc_loss without demonstrations)."""
+    # lazy: runner imports this module, and JAX (tracking stays JAX-free)
     from daddpg_jax.running.runner import METRIC_COLUMNS
 
     values = {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS if c != "env_steps"}
@@ -76,7 +77,7 @@ def config_text(cfg, env_overrides: dict | None) -> str:
 
 def gif_bytes(frames, fps: int) -> bytes:
     """Frames (H x W x 3 uint8) as an animated GIF, the format of TensorBoard's image plugin."""
-    import imageio.v2 as imageio
+    import imageio.v2 as imageio  # optional extra [video]
 
     buf = io.BytesIO()
     imageio.mimsave(buf, frames, format="GIF", duration=1000.0 / fps, loop=0)
@@ -109,7 +110,7 @@ class TensorBoardLogger:
     def log_video(self, frames, fps: int, step: int, path: str | None = None):
         """The video as an animated GIF in the image plugin (tag ``eval/video``), encoded with
         imageio (tensorboardX's own add_video needs moviepy)."""
-        from tensorboardX.proto.summary_pb2 import Summary
+        from tensorboardX.proto.summary_pb2 import Summary  # lazy: as SummaryWriter above
 
         h, w = frames[0].shape[:2]
         image = Summary.Image(height=h, width=w, colorspace=3,
@@ -152,7 +153,7 @@ class WandbLogger:
         self.run.log({"env_steps": int(row["env_steps"]), **row_scalars(row)})
 
     def log_video(self, frames, fps: int, step: int, path: str | None = None):
-        import wandb
+        import wandb  # optional extra [wandb]
 
         if path and os.path.exists(path):
             self.run.log({"env_steps": int(step), "eval/video": wandb.Video(path)})
