@@ -1,6 +1,6 @@
 """Pads in front of a blocking finger box (probe): the dense sphere grid of screen_dense.py set
 OUT_M (m, environment; default 0.001) beyond the finger box's inner face, and the finger box kept in its pair with the neck
-or handle at friction 0.05 (a blocker, as with the bar's caps). GRID=dense|coarse (environment).
+or handle at friction 0.05 (a blocker, as with the bar's caps). GRID=dense|coarse, HOLD_HI (the upper end of scripted.HOLD_OPENING) in the environment.
 python recessed.py OUT.json TASK..."""
 import json
 import os
@@ -44,19 +44,32 @@ def _edit(spec, **_):
         p.friction = [0.05, 0.05, 0.005, 0.0001, 0.0001]
 
 
-spheres._edit = _edit
-spheres.patch(r=R)
-from daddpg_jax.analysis import engine_parity as ep  # noqa: E402
 
-ep._finger_geoms = lambda m: np.array([i for i in range(m.ngeom) if "_finger" in (m.geom(i).name or "")])
-out = {}
-for task in sys.argv[2:]:
-    st = ep.grasp_states(task)
-    f = ep.forward_gap(task, ep.candidate("baseline"), st)
-    print("forward", task, {k: f[k] for k in ("states", "finger_contacts_c", "finger_contacts_mjx",
-                                              "dacc_lin_mean", "dacc_lin_p95")}, flush=True)
-    r = ep.measure(task, ep.candidate("baseline"), episodes=32)
-    out[task] = dict(forward=f, c=r["c"]["success"], mjx=r["mjx"]["success"],
-                     div_test=r["div_test_mm"], div_mean=r["div_mean_mm"])
-    print("RESULT", task, out[task]["c"], out[task]["mjx"], out[task]["div_test"], out[task]["div_mean"], flush=True)
-    json.dump(out, open(sys.argv[1], "w"), indent=1, default=str)
+def patch():
+    spheres._edit = _edit
+    spheres.patch(r=R)
+    if os.environ.get("HOLD_HI"):   # the scripted controller's "closed on the object" openings
+        from mjx_envs.tasks import scripted
+        scripted.HOLD_OPENING = (scripted.HOLD_OPENING[0], float(os.environ["HOLD_HI"]))
+
+
+def main():
+    patch()
+    from daddpg_jax.analysis import engine_parity as ep
+
+    ep._finger_geoms = lambda m: np.array([i for i in range(m.ngeom) if "_finger" in (m.geom(i).name or "")])
+    out = {}
+    for task in sys.argv[2:]:
+        st = ep.grasp_states(task)
+        f = ep.forward_gap(task, ep.candidate("baseline"), st)
+        print("forward", task, {k: f[k] for k in ("states", "finger_contacts_c", "finger_contacts_mjx",
+                                                  "dacc_lin_mean", "dacc_lin_p95")}, flush=True)
+        r = ep.measure(task, ep.candidate("baseline"), episodes=32)
+        out[task] = dict(forward=f, c=r["c"]["success"], mjx=r["mjx"]["success"],
+                         div_test=r["div_test_mm"], div_mean=r["div_mean_mm"])
+        print("RESULT", task, out[task]["c"], out[task]["mjx"], out[task]["div_test"], out[task]["div_mean"], flush=True)
+        json.dump(out, open(sys.argv[1], "w"), indent=1, default=str)
+
+
+if __name__ == "__main__":
+    main()
