@@ -1,6 +1,6 @@
 """Pads in front of a blocking finger box (probe): the dense sphere grid of screen_dense.py set
 OUT_M (m, environment; default 0.001) beyond the finger box's inner face, and the finger box kept in its pair with the neck
-or handle at friction 0.05 (a blocker, as with the bar's caps). GRID=dense|coarse, HOLD_HI (the upper end of scripted.HOLD_OPENING) in the environment.
+or handle at friction 0.05 (a blocker, as with the bar's caps). GRID=dense|coarse, SETTLE (grasp_start.SETTLE_STEPS), HOLD_HI (the upper end of scripted.HOLD_OPENING) in the environment.
 python recessed.py OUT.json TASK..."""
 import json
 import os
@@ -48,6 +48,9 @@ def _edit(spec, **_):
 def patch():
     spheres._edit = _edit
     spheres.patch(r=R)
+    if os.environ.get("SETTLE"):    # control steps the grasped-start recorder waits for a hold
+        from mjx_envs.tasks import grasp_start
+        grasp_start.SETTLE_STEPS = int(os.environ["SETTLE"])
     if os.environ.get("HOLD_HI"):   # the scripted controller's "closed on the object" openings
         from mjx_envs.tasks import scripted
         scripted.HOLD_OPENING = (scripted.HOLD_OPENING[0], float(os.environ["HOLD_HI"]))

@@ -6,6 +6,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import recessed; recessed.patch()
 import jax, numpy as np, mjx_envs
 from mjx_envs.tasks import grasp_start as gs
+gs.SETTLE_STEPS = int(os.environ.get("SETTLE", gs.SETTLE_STEPS))
 env = mjx_envs.make("pickup", physics="c")
 keys = jax.random.split(jax.random.PRNGKey(gs.GRASP_SEED), 80)
 qpos, qvel, mocap, held = gs._play(env, keys)
