@@ -2,12 +2,11 @@
 counts as part of the function that encloses it; decorators and docstrings count)."""
 
 import ast
-import os
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PACKAGES = ("daddpg_jax", "mjx_envs")
+from tests.package_sources import PACKAGES, sources
+
 MAX_LINES = 100
 
 
@@ -22,17 +21,12 @@ def outermost_functions(tree: ast.AST):
 
 def long_functions(package: str, max_lines: int = MAX_LINES) -> list[str]:
     out = []
-    for dirpath, dirnames, filenames in os.walk(os.path.join(ROOT, package)):
-        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
-        for name in sorted(f for f in filenames if f.endswith(".py")):
-            path = os.path.join(dirpath, name)
-            with open(path, encoding="utf-8") as f:
-                tree = ast.parse(f.read(), path)
-            for fn in outermost_functions(tree):
-                first = min([fn.lineno] + [d.lineno for d in fn.decorator_list])
-                n = fn.end_lineno - first + 1
-                if n > max_lines:
-                    out.append(f"{os.path.relpath(path, ROOT)}:{first} {fn.name}: {n} lines")
+    for path, rel, src in sources(package):
+        for fn in outermost_functions(ast.parse(src, path)):
+            first = min([fn.lineno] + [d.lineno for d in fn.decorator_list])
+            n = fn.end_lineno - first + 1
+            if n > max_lines:
+                out.append(f"{rel}:{first} {fn.name}: {n} lines")
     return out
 
 

@@ -6,14 +6,13 @@ level) need none. Parsed with ``ast``, so docstrings and example code do not cou
 
 import ast
 import io
-import os
 import re
 import tokenize
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PACKAGES = ("daddpg_jax", "mjx_envs")
+from tests.package_sources import PACKAGES, sources
+
 COMMENT_LINES = 3
 _IMPORTS = (ast.Import, ast.ImportFrom)
 _SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Lambda)
@@ -90,14 +89,8 @@ def test_finds_only_nested_uncommented_imports():
 @pytest.mark.parametrize("package", PACKAGES)
 def test_every_lazy_import_says_why(package):
     bad = []
-    for dirpath, dirnames, filenames in os.walk(os.path.join(ROOT, package)):
-        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
-        for name in sorted(f for f in filenames if f.endswith(".py")):
-            path = os.path.join(dirpath, name)
-            with open(path, encoding="utf-8") as f:
-                src = f.read()
-            rel = os.path.relpath(path, ROOT)
-            bad += [f"{rel}:{n}" for n in uncommented_imports(src, path)]
+    for path, rel, src in sources(package):
+        bad += [f"{rel}:{n}" for n in uncommented_imports(src, path)]
     assert not bad, ("imports inside functions or classes without a comment saying why they "
                      "are lazy (move them to the top, or add e.g. '# lazy: keeps --help "
                      "JAX-free'):\n" + "\n".join(bad))
