@@ -67,7 +67,9 @@ def load_model(scene: str, timestep: float | None = None, cone: str | None = Non
             m = mujoco.MjModel.from_xml_path(str(path))
         else:
             spec = mujoco.MjSpec.from_file(str(path))
-            _physics_v1(spec, scene)
+            _physics_v2(spec)
+            if version == 1:
+                _physics_v1(spec, scene)
             m = spec.compile()
     if timestep is not None:
         m.opt.timestep = float(timestep)
@@ -80,21 +82,34 @@ def _is_finger(name: str) -> bool:
     return name.endswith(("_finger1", "_finger2"))
 
 
+def _physics_v2(spec: mujoco.MjSpec) -> None:
+    """Turns a shipped scene's spec (physics version 3) into version 2: without the numeric
+    that makes MJX return each box-box contact point once (`settings.MJX_UNIQUE_CONTACTS`)."""
+    for numeric in list(spec.numerics):
+        if numeric.name == settings.MJX_UNIQUE_CONTACTS:
+            spec.delete(numeric)
+
+
+def _pair_friction(spec: mujoco.MjSpec, friction: dict) -> None:
+    """Sets the friction of every finger pair with an object geom named in ``friction``."""
+    for pair in spec.pairs:
+        names = (pair.geomname1, pair.geomname2)
+        if any(_is_finger(n) for n in names):
+            for n in names:
+                if n in friction:
+                    pair.friction = friction[n]
+
+
 def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
-    """Turns a shipped scene's spec (physics version 2) into version 1 (`PHYSICS_V1`)."""
+    """Turns a version-2 spec (`_physics_v2`) into version 1 (`PHYSICS_V1`)."""
     v1 = settings.PHYSICS_V1
     for geom in spec.geoms:
         if _is_finger(geom.name):
             geom.size = v1["finger_size"]
-    friction = v1["pair_friction"].get(scene, {})
     for pair in spec.pairs:
-        names = (pair.geomname1, pair.geomname2)
-        if not any(_is_finger(n) for n in names):
-            continue
-        pair.margin = v1["finger_pair_margin"]
-        for n in names:
-            if n in friction:
-                pair.friction = friction[n]
+        if any(_is_finger(n) for n in (pair.geomname1, pair.geomname2)):
+            pair.margin = v1["finger_pair_margin"]
+    _pair_friction(spec, v1["pair_friction"].get(scene, {}))
 
 
 def home_state(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

@@ -19,22 +19,29 @@ import dataclasses
 from mjx_envs import registry
 from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
 
-PHYSICS_VERSION = 2
+PHYSICS_VERSION = 3
 """Version of the simulated physics (the MJCF scenes in assets/ and how the engines step them).
 1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger boxes, finger-pot body and
 finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
 0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
-only block (pot body; bar middle and caps): the two engines agree (docs/TASKS.md, "MJX vs C").
-The scenes in assets/ are the current version; `PHYSICS_V1` holds what version 1 had instead,
-and `mjx_envs.model.load_model` builds either, so that a run or a policy file acts with the
-physics it was trained on (its record: config.json's and the export's ``physics_version``,
-absent = 1)."""
+only block (pot body; bar middle and caps). 3: MJX returns each box-box contact point once, as
+the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`, which the C engine ignores: it
+steps versions 2 and 3 alike). See docs/TASKS.md, "MJX vs C".
+The scenes in assets/ are the current version; `mjx_envs.model.load_model` builds the older
+ones from them (version 2: without the numeric; version 1: also `PHYSICS_V1`), so that a run or
+a policy file acts with the physics it was trained on (its record: config.json's and the
+export's ``physics_version``, absent = 1)."""
 
 
 def physics_changed(version: int, task: str) -> bool:
-    """Whether physics `version` changed how `task` acts: version 2 changed the finger
-    contacts, so every task with an object (reach and unknown tasks: no)."""
-    return version == 2 and registry.is_task(task) and registry.get(task).object is not None
+    """Whether physics `version` changed how `task` acts: versions 2 and 3 changed the finger
+    contacts (3: on MJX only), so every task with an object (reach and unknown tasks: no)."""
+    return (version in (2, 3) and registry.is_task(task)
+            and registry.get(task).object is not None)
+
+MJX_UNIQUE_CONTACTS = "mjx_unique_contact_points"
+"""Name of a scene's custom numeric: 1 = MJX returns each contact point of a box-box or
+convex-convex pair once, as the C engine does (`mjx_envs.physics.mjx_contacts`)."""
 
 PHYSICS_V1 = dict(
     finger_size=(0.012, 0.006, 0.035),

@@ -44,8 +44,10 @@ def _arrays(m) -> dict:
 
 @pytest.mark.parametrize("scene", SCENES)
 def test_version_1_is_the_recorded_scene(scene, recorded):
-    """Every array version 1 changed equals the record; every other equals today's (~0.2 s)."""
-    old, new = _arrays(load_model(scene, physics_version=1)), _arrays(load_model(scene))
+    """Every array version 1 changed equals the record; every other equals version 2's (the
+    record was taken when version 2 was current) (~0.2 s)."""
+    old = _arrays(load_model(scene, physics_version=1))
+    new = _arrays(load_model(scene, physics_version=2))
     changed = {k.split("/", 1)[1]: v for k, v in recorded.items()
                if k.startswith(scene[:-4] + "/")}
     assert {"geom_size", "geom_rbound"} <= set(changed)   # the finger boxes, in every scene
@@ -54,6 +56,32 @@ def test_version_1_is_the_recorded_scene(scene, recorded):
         assert not np.array_equal(new[name], v), name
     for name in set(old) - set(changed):
         np.testing.assert_array_equal(old[name], new[name], err_msg=name)
+
+
+NUMERIC_ARRAYS = {"numeric_adr", "numeric_size", "numeric_data", "name_numericadr", "names",
+                  "names_map"}
+"""the arrays that hold a custom numeric: its address, size, value and name"""
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_version_2_is_today_s_scene_without_the_unique_contacts_numeric(scene):
+    """Version 3 adds only `settings.MJX_UNIQUE_CONTACTS` = 1 (the C engine ignores it), and
+    version 2 as built here lacks it: every other array is equal (~0.2 s)."""
+    v2, v3 = load_model(scene, physics_version=2), load_model(scene)
+    assert v2.nnumeric == 0 and v3.nnumeric == 1
+    assert v3.numeric(settings.MJX_UNIQUE_CONTACTS).data.tolist() == [1.0]
+    old, new = _arrays(v2), _arrays(v3)
+    assert set(old) == set(new)
+    for name in set(old) - NUMERIC_ARRAYS:
+        if name.startswith("name_") and name.endswith("adr"):   # addresses into `names`
+            assert _names(v2, old[name]) == _names(v3, new[name]), name
+        else:
+            np.testing.assert_array_equal(old[name], new[name], err_msg=name)
+
+
+def _names(m, addresses) -> list[str]:
+    buf = bytes(m.names)
+    return [buf[a:buf.index(b"\0", a)].decode() for a in addresses.tolist()]
 
 
 def test_version_1_differs_where_the_record_says():

@@ -55,6 +55,7 @@ from flax import struct
 from mujoco import rollout
 
 from mjx_envs import randomize, settings
+from mjx_envs.physics import mjx_contacts
 
 
 def default_physics() -> str:
@@ -76,11 +77,13 @@ _WARP_NOISE = re.compile(r"^Failed to import (mujoco_)?warp\b")
 
 
 def import_mjx():
-    """``mujoco.mjx``, imported without the "Failed to import warp" / "Failed to import
+    """``mujoco.mjx`` with `mjx_contacts.install` applied (scenes of physics version 3 get each
+    box-box contact point once), imported without the "Failed to import warp" / "Failed to import
     mujoco_warp" lines that mujoco 4.0's MJX prints when the optional Warp backend is not
     installed (it is not used here). Only those lines are held back (logged at debug level);
     anything else printed during the import passes through."""
     if "mujoco.mjx" in sys.modules:
+        mjx_contacts.install()
         return sys.modules["mujoco.mjx"]
     buf = io.StringIO()
     try:
@@ -93,6 +96,7 @@ def import_mjx():
                 logging.getLogger(__name__).debug("%s", line)
             else:
                 print(line)
+    mjx_contacts.install()
     return mjx
 
 

@@ -1,0 +1,82 @@
+"""MJX's box-box and convex contact points, each point once (physics version 3).
+
+MJX's box-box and convex-convex collisions (``mujoco/mjx/_src/collision_convex.py``) return a
+fixed set of 4 contact points per pair, chosen by ``_manifold_points`` as arg-maxima over the
+clipped contact polygon. When fewer than 4 points penetrate (a finger's edge lying on a face:
+2 points, the usual case in a grasp), the same point is returned two or three times and becomes
+two or three identical constraint rows. MuJoCo's C engine returns each point once. Repeated rows
+act as one contact with a fraction of the regularization, i.e. a stiffer one: at the C engine's
+grasped states of the scripted pick-up controller MJX counted 15.8 finger contacts against C's
+9.3, and held a bar pulled down with 3x its weight with a 0.8 mm drop against C's 3.1 mm
+(docs/TASKS.md, "One contact point once"). MJX's own plane-convex collision already drops its
+repeats (``plane_convex``: ``unique``); this module does the same for the pairs that do not.
+
+`install` puts a wrapper in front of MJX's box-box and convex-convex colliders. The wrapper
+changes nothing unless the model asks for it with the custom numeric `NUMERIC` = 1 (the scenes
+of physics version 3 do; `mjx_envs.model.load_model` removes it for older versions), so MJX runs
+of older physics versions, and any other model in the process, step exactly as before. A
+repeated point keeps its position and gets MJX's "no contact" distance (1.0, the value
+``plane_convex`` and the clipped manifold use), so its constraint rows are inactive. The C
+engine ignores the numeric.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from mjx_envs.settings import MJX_UNIQUE_CONTACTS as NUMERIC
+
+TOLERANCE = 1e-6
+"""two points of one pair closer than this (metres) are one point; distinct manifold points
+lie millimetres apart, a repeat is the identical array element"""
+NO_CONTACT = 1.0
+"""the distance MJX gives a manifold point that does not touch"""
+
+
+def unique_points(dist: jnp.ndarray, pos: jnp.ndarray, ncon: int,
+                  tol: float = TOLERANCE) -> jnp.ndarray:
+    """``dist`` [P * ncon] of P pairs with ``ncon`` points each (positions ``pos`` [P * ncon,
+    3]) with every point that repeats an earlier point of its pair set to `NO_CONTACT`."""
+    d = dist.reshape(-1, ncon)
+    p = pos.reshape(-1, ncon, 3)
+    close = jnp.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1) < tol
+    earlier = jnp.tril(jnp.ones((ncon, ncon), bool), -1)  # [k, j]: j before k
+    repeat = (close & earlier).any(-1)
+    return jnp.where(repeat, jnp.asarray(NO_CONTACT, d.dtype), d).reshape(dist.shape)
+
+
+def _unique(collide):
+    # lazy: see `install`
+    from mujoco.mjx._src import collision_driver
+
+    def collide_unique(m, d, key, geom):
+        dist, pos, frame = collide(m, d, key, geom)
+        if collision_driver._numeric(m, NUMERIC) == 1:  # a static field of the model
+            dist = unique_points(dist, pos, collide.ncon)
+        return dist, pos, frame
+
+    collide_unique.ncon = collide.ncon
+    collide_unique.repeats_dropped = True
+    return collide_unique
+
+
+def install() -> None:
+    """Wraps MJX's box-box and convex-convex colliders (idempotent). Called by
+    `mjx_envs.physics.backends.import_mjx`, i.e. before any MJX function of this package is
+    traced."""
+    # lazy: MJX's private collision table loads only with MJX (`backends.import_mjx`)
+    from mujoco.mjx._src import collision_convex, collision_driver
+
+    table = collision_driver._COLLISION_FUNC
+    for types, collide in list(table.items()):
+        if collide in (collision_convex.box_box, collision_convex.convex_convex):
+            table[types] = _unique(collide)
+
+
+def installed() -> bool:
+    """Whether `install` has wrapped MJX's box-box collider."""
+    from mujoco.mjx._src import collision_driver  # lazy: as in `install`
+    from mujoco.mjx._src.types import GeomType  # lazy: as in `install`
+
+    box_box = collision_driver._COLLISION_FUNC[(GeomType.BOX, GeomType.BOX)]
+    return getattr(box_box, "repeats_dropped", False)
