@@ -105,9 +105,10 @@ class TaskConfig:
                      "model without contacts)", choices=("elliptic", "pyramidal"))
     physics_version: int = spec(PHYSICS_VERSION, "physics version of the simulated scene "
                                 "(mjx_envs.settings.PHYSICS_VERSION: the current one; 1: the "
-                                "contacts before the engines were made to agree, kept so that "
-                                "older runs and policy files act with the physics they were "
-                                "trained on)", low=1, high=PHYSICS_VERSION)
+                                "contacts before the engines were made to agree; 2: before MJX "
+                                "returned each box-box contact point once; kept so that older "
+                                "runs and policy files act with the physics they were trained "
+                                "on)", low=1, high=PHYSICS_VERSION)
     max_delta: float = spec(0.05, "largest move of a gripper target per control step along "
                             "each axis, metres", low=0.0, low_open=True)
     lock_fingers: bool = spec(True, "ignore the finger command and hold the fingers at "
