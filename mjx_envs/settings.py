@@ -33,9 +33,12 @@ a policy file acts with the physics it was trained on (its record: config.json's
 export's ``physics_version``, absent = 1)."""
 
 
-def physics_changed(version: int, task: str) -> bool:
-    """Whether physics `version` changed how `task` acts: versions 2 and 3 changed the finger
-    contacts (3: on MJX only), so every task with an object (reach and unknown tasks: no)."""
+def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
+    """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
+    versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
+    tasks: no); version 3 changed MJX only."""
+    if version == 3 and engine == "c":
+        return False
     return (version in (2, 3) and registry.is_task(task)
             and registry.get(task).object is not None)
 
@@ -64,14 +67,16 @@ def recorded_physics_version(recorded) -> int:
     return 1 if recorded is None else int(recorded)
 
 
-def physics_version_note(recorded, task: str, simulated: int | None = None) -> str | None:
+def physics_version_note(recorded, task: str, simulated: int | None = None,
+                         engine: str | None = None) -> str | None:
     """None when a run or a policy file of `task`, trained with physics version `recorded`, is
-    simulated (version `simulated`, default `PHYSICS_VERSION`) with physics that act alike;
-    else one line saying which version it was trained with and which one simulates it."""
+    simulated (version `simulated`, default `PHYSICS_VERSION`) with physics that act alike on
+    `engine` (None: on either engine); else one line saying which version it was trained with and
+    which one simulates it."""
     version = recorded_physics_version(recorded)
     now = PHYSICS_VERSION if simulated is None else int(simulated)
     lo, hi = sorted((version, now))
-    if not any(physics_changed(v, task) for v in range(lo + 1, hi + 1)):
+    if not any(physics_changed(v, task, engine) for v in range(lo + 1, hi + 1)):
         return None
     return (f"trained with physics version {version}, simulated here with version {now} "
             f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "

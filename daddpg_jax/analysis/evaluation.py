@@ -130,7 +130,8 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
     cfg = cfg.replace(buffer_size=1, n_demos=0)
     overrides = standard_env_overrides(cfg.task, payload.get("env_overrides"))
     if physics_version is not None:
-        ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version)
+        ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version,
+                          engine=cfg.physics if cfg.physics in settings.ENGINES else None)
         overrides["physics_version"] = int(physics_version)
     env = make_env(cfg, overrides)
     fns = make_train_fns(env, cfg)

@@ -581,13 +581,14 @@ def load_config(run_dir):
     return cfg, payload
 
 
-def physics_note(run_dir, payload, task: str, simulated: int | None = None) -> None:
+def physics_note(run_dir, payload, task: str, simulated: int | None = None,
+                 engine: str | None = None) -> None:
     """Prints one warning line (once per run and process) when a run of `task` is simulated
     with a physics version (`simulated`, default its own) that acts unlike the one it was
-    trained on (`mjx_envs.settings.physics_version_note`)."""
+    trained on, on `engine` when named (`mjx_envs.settings.physics_version_note`)."""
     recorded = payload.get("physics_version")
     own = (payload.get("env_overrides") or {}).get("physics_version", recorded)
-    note = physics_version_note(recorded, task, own if simulated is None else simulated)
+    note = physics_version_note(recorded, task, own if simulated is None else simulated, engine)
     key = (os.fspath(run_dir), simulated)
     if note and key not in _PHYSICS_NOTED:
         _PHYSICS_NOTED.add(key)
