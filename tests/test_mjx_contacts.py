@@ -46,7 +46,7 @@ def _edge_on_box(unique: bool) -> mujoco.MjModel:
                if unique else "")
     z = 0.02 * (np.cos(0.2) + np.sin(0.2)) - 0.001
     return mujoco.MjModel.from_xml_string(f"""
-<mujoco>{numeric}
+<mujoco><compiler angle="radian"/>{numeric}
   <worldbody>
     <geom name="floor" type="box" size="0.1 0.1 0.02" pos="0 0 -0.02"/>
     <body pos="0 0 {z}" euler="0.2 0 0"><freejoint/>
