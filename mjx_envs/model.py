@@ -67,7 +67,7 @@ def load_model(scene: str, timestep: float | None = None, cone: str | None = Non
             m = mujoco.MjModel.from_xml_path(str(path))
         else:
             spec = mujoco.MjSpec.from_file(str(path))
-            _physics_v2(spec)
+            _physics_v2(spec, scene)
             if version == 1:
                 _physics_v1(spec, scene)
             m = spec.compile()
@@ -82,22 +82,25 @@ def _is_finger(name: str) -> bool:
     return name.endswith(("_finger1", "_finger2"))
 
 
-def _physics_v2(spec: mujoco.MjSpec) -> None:
-    """Turns a shipped scene's spec (physics version 3) into version 2: without the numeric
-    that makes MJX return each box-box contact point once (`settings.MJX_UNIQUE_CONTACTS`)."""
+def _physics_v2(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a shipped scene's spec (physics version 3) into version 2 (`PHYSICS_V2`): without
+    the numeric that makes MJX return each box-box contact point once
+    (`settings.MJX_UNIQUE_CONTACTS`), with version 2's finger-pair solimp."""
     for numeric in list(spec.numerics):
         if numeric.name == settings.MJX_UNIQUE_CONTACTS:
             spec.delete(numeric)
+    _finger_pairs(spec, "solimp", settings.PHYSICS_V2["pair_solimp"].get(scene, {}))
 
 
-def _pair_friction(spec: mujoco.MjSpec, friction: dict) -> None:
-    """Sets the friction of every finger pair with an object geom named in ``friction``."""
+def _finger_pairs(spec: mujoco.MjSpec, field: str, values: dict) -> None:
+    """Sets ``field`` (e.g. "friction") of every finger pair with an object geom named in
+    ``values`` to that geom's value."""
     for pair in spec.pairs:
         names = (pair.geomname1, pair.geomname2)
         if any(_is_finger(n) for n in names):
             for n in names:
-                if n in friction:
-                    pair.friction = friction[n]
+                if n in values:
+                    setattr(pair, field, values[n])
 
 
 def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
@@ -109,7 +112,7 @@ def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
     for pair in spec.pairs:
         if any(_is_finger(n) for n in (pair.geomname1, pair.geomname2)):
             pair.margin = v1["finger_pair_margin"]
-    _pair_friction(spec, v1["pair_friction"].get(scene, {}))
+    _finger_pairs(spec, "friction", v1["pair_friction"].get(scene, {}))
 
 
 def home_state(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

@@ -25,26 +25,38 @@ PHYSICS_VERSION = 3
 finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
 0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
 only block (pot body; bar middle and caps). 3: MJX returns each box-box contact point once, as
-the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`, which the C engine ignores: it
-steps versions 2 and 3 alike). See docs/TASKS.md, "MJX vs C".
+the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`, which the C engine ignores), and
+pot's finger-handle contacts are softer (solimp 0.9 0.95); on the C engine, push and pick up act
+in versions 2 and 3 alike. See docs/TASKS.md, "MJX vs C".
 The scenes in assets/ are the current version; `mjx_envs.model.load_model` builds the older
-ones from them (version 2: without the numeric; version 1: also `PHYSICS_V1`), so that a run or
-a policy file acts with the physics it was trained on (its record: config.json's and the
-export's ``physics_version``, absent = 1)."""
+ones from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`), so that a run or a
+policy file acts with the physics it was trained on (its record: config.json's and the export's
+``physics_version``, absent = 1)."""
 
 
 def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
-    tasks: no); version 3 changed MJX only."""
+    tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names."""
     if version == 3 and engine == "c":
-        return False
+        return (registry.is_task(task) and registry.get(task).config.scene
+                in PHYSICS_V2["pair_solimp"])
     return (version in (2, 3) and registry.is_task(task)
             and registry.get(task).object is not None)
 
 MJX_UNIQUE_CONTACTS = "mjx_unique_contact_points"
 """Name of a scene's custom numeric: 1 = MJX returns each contact point of a box-box or
 convex-convex pair once, as the C engine does (`mjx_envs.physics.mjx_contacts`)."""
+
+PHYSICS_V2 = dict(
+    pair_solimp={
+        "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
+                          "pot_handle_r": (0.95, 0.99, 0.001, 0.5, 2.0)},
+    },
+)
+"""Physics version 2, as differences from the shipped scenes besides the numeric
+`MJX_UNIQUE_CONTACTS` (which it lacks): per scene the solimp of the finger pairs with the named
+object geoms."""
 
 PHYSICS_V1 = dict(
     finger_size=(0.012, 0.006, 0.035),

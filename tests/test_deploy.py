@@ -374,9 +374,10 @@ def test_the_physics_version_is_recorded_and_an_older_run_acts_with_its_own(tmp_
     assert physics_version_note(PHYSICS_VERSION, "pickup") is None
     assert physics_version_note(None, "reach") is None      # version 2 changed no reach physics
     assert physics_version_note(None, "pickup", simulated=1) is None
-    # version 3 changed MJX only: a version-2 run simulated with version 3 on the C engine acts
-    # alike; on MJX (or an engine not named) it may not
+    # version 3 changed MJX, and on the C engine only pot: a version-2 pick-up run simulated with
+    # version 3 on the C engine acts alike; on MJX (or an engine not named) it may not
     assert physics_version_note(2, "pickup", simulated=3, engine="c") is None
+    assert physics_version_note(2, "pot", simulated=3, engine="c") is not None
     assert physics_version_note(2, "pickup", simulated=3, engine="mjx") is not None
     assert physics_version_note(2, "pickup", simulated=3) is not None
     note = physics_version_note(None, "pickup")

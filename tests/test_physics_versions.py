@@ -64,14 +64,21 @@ NUMERIC_ARRAYS = {"numeric_adr", "numeric_size", "numeric_data", "name_numericad
 
 
 @pytest.mark.parametrize("scene", SCENES)
-def test_version_2_is_today_s_scene_without_the_unique_contacts_numeric(scene):
-    """Version 3 adds only `settings.MJX_UNIQUE_CONTACTS` = 1 (the C engine ignores it), and
-    version 2 as built here lacks it: every other array is equal (~0.2 s)."""
+def test_version_2_is_today_s_scene_without_version_3_s_changes(scene):
+    """Version 3 adds `settings.MJX_UNIQUE_CONTACTS` = 1 (the C engine ignores it) and softens
+    pot's four finger-handle pairs; version 2 as built here lacks the numeric and has their old
+    solimp: every other array is equal (~0.2 s)."""
     v2, v3 = load_model(scene, physics_version=2), load_model(scene)
     assert v2.nnumeric == 0 and v3.nnumeric == 1
     assert v3.numeric(settings.MJX_UNIQUE_CONTACTS).data.tolist() == [1.0]
     old, new = _arrays(v2), _arrays(v3)
     assert set(old) == set(new)
+    handles = [i for i in range(v3.npair) if "pot_handle" in v3.geom(int(v3.pair_geom2[i])).name]
+    assert len(handles) == (4 if scene == "scene_pot.xml" else 0)
+    for i in handles:
+        assert old["pair_solimp"][i][:2].tolist() == [0.95, 0.99]
+        assert new["pair_solimp"][i][:2].tolist() == [0.9, 0.95]
+        new["pair_solimp"][i] = old["pair_solimp"][i]
     for name in set(old) - NUMERIC_ARRAYS:
         if name.startswith("name_") and name.endswith("adr"):   # addresses into `names`
             assert _names(v2, old[name]) == _names(v3, new[name]), name
