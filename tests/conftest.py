@@ -11,6 +11,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")   # headless rendering, as the CLIs th
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 from daddpg_jax.algo.config import TrainConfig  # noqa: E402
 
@@ -73,3 +74,15 @@ def call_main(main, argv) -> int:
     except SystemExit as e:
         code = e.code if isinstance(e.code, int) or e.code is None else 1
     return 0 if code is None else code
+
+
+@pytest.fixture
+def arm_recorder(monkeypatch):
+    """An independent recorder of every command a simulated cell receives in the test
+    (tests/arm_recorder.py); a command outside the expected limits fails the test."""
+    from tests.arm_recorder import ArmRecorder, install  # lazy: only the robot-side tests
+
+    rec = ArmRecorder()
+    install(monkeypatch, rec)
+    yield rec
+    assert not rec.violations, "commands outside the limits: " + "; ".join(rec.violations[:5])

@@ -6,6 +6,7 @@ module."""
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import json
 import os
@@ -32,8 +33,10 @@ from daddpg_jax.deploy.arms import (
     connect_ur,
     joint_solution,
     link_points_base,
-    make_env,
+    safety_of_spec,
 )
+from daddpg_jax.deploy.arms_factory import make_env
+from daddpg_jax.deploy.gate import GateRefusal
 from daddpg_jax.deploy.limits import SHIPPED, LimitsError, RobotLimits
 from daddpg_jax.deploy.policy import task_settings
 from daddpg_jax.deploy.safety import SafetyFilter
@@ -42,6 +45,8 @@ from daddpg_jax.deploy.ursim import SimArms, SimCell, sim_env, sim_ur_env
 from mjx_envs import randomize, rules
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from tests.reach_controller import write_reach_controller
+
+pytestmark = pytest.mark.usefixtures("arm_recorder")  # every command checked
 
 SIM_LIMITS = os.path.join(SHIPPED, "sim.toml")
 BOARD = os.path.join(SHIPPED, "board_example.json")
@@ -95,9 +100,10 @@ class _Recorder:
 
 
 def _recorded_ur_sim(policy, calls):
-    env = sim_ur_env(_env(policy), _env(policy), 0.04)
-    env.arms.controls = [_Recorder(c, calls) for c in env.arms.controls]
-    env.arms.receives = [_Recorder(r, calls) for r in env.arms.receives]
+    env = sim_ur_env(_env(policy), _env(policy), 0.04, watchdog=1.0)
+    ur = env.arms.arms  # URArms behind the gate
+    ur.controls = [_Recorder(c, calls) for c in ur.controls]
+    ur.receives = [_Recorder(r, calls) for r in ur.receives]
     return env
 
 
@@ -116,16 +122,18 @@ def test_link_points_from_joint_angles_match_the_simulator(policy):
 def test_ur_sim_succeeds_at_the_sim_rate_and_identity_frames_fail(policy):
     """~3 s: 20 episodes through the simulator and through URArms on the simulated
     controllers (same goals): the rates agree within the sim's 95% CI; with the frame
-    conversion replaced by the identity the same policy fails."""
+    conversion replaced by the identity the gate refuses to start (the arms' measured poses
+    lie outside their boxes in that frame): nothing moves."""
     sim = _run(policy, _env(policy), 20)
     ur = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04), 20)
     lo, hi = sim["success_ci95"]
     assert sim["success_rate"] >= 0.8
     assert lo <= ur["success_rate"] <= hi
     assert abs(ur["mean_final_distance"] - sim["mean_final_distance"]) < 0.002
-    ident = _run(policy, sim_ur_env(_env(policy), _env(policy), 0.04,
-                                    bases=np.stack([np.eye(4)] * 2)), 3)
-    assert ident["success_rate"] == 0.0 and ident["mean_final_distance"] > 0.2
+    ident = sim_ur_env(_env(policy), _env(policy), 0.04, bases=np.stack([np.eye(4)] * 2))
+    with pytest.raises(GateRefusal, match="measured tool position .* outside its box"):
+        _run(policy, ident, 3)
+    assert ident.arms.arms.receives[0].cell.steps == 0
 
 
 def test_every_ur_rtde_call_exists_with_its_argument_count(policy):
@@ -185,8 +193,8 @@ def test_a_hold_streams_the_held_pose_and_servo_stop_comes_only_at_exit(policy):
     calls = []
     env = _recorded_ur_sim(policy, calls)
     sent = []
-    servo = env.arms.servo
-    env.arms.servo = lambda poses: (sent.append(np.array(poses)), servo(poses))
+    servo = env.arms.arms.servo  # what passes the gate
+    env.arms.arms.servo = lambda poses: (sent.append(np.array(poses)), servo(poses))
     out = _run(policy, env, 1, client=_Client(policy, bad_steps={5, 6}))
     assert out["stops"] == 2
     assert len(sent) == env.episode_length
@@ -263,7 +271,7 @@ def test_sim_arms_and_ur_arms_implement_every_method_of_the_arms_interface():
             want = list(inspect.signature(getattr(Arms, name)).parameters)
             assert list(inspect.signature(getattr(cls, name)).parameters) == want, (cls, name)
     env = make_env("sim", None, "reach", 0.04, bases=np.stack([np.eye(4)] * 2))
-    assert isinstance(env, ArmsEnv) and isinstance(env.arms, SimArms)
+    assert isinstance(env, ArmsEnv) and isinstance(env.arms.arms, SimArms)
     np.testing.assert_allclose(env.bases, env.arms.cell.bases)  # its own exact bases
     from daddpg_jax.deploy.arms import ArmsUsageError
 
@@ -280,6 +288,15 @@ def _same_step(a, b):
     assert b.success == a.success
 
 
+def _sim_arms_without_clearance_rule(task):
+    """--arms sim on the simulator's own limits with the gate's clearance rule off: random
+    actions drive the arms into each other, which the gate refuses (tests/test_gate.py), while
+    the simulator stepped directly lets them collide."""
+    spec = NumpyDualArmEnv(task=task)
+    safety = dataclasses.replace(safety_of_spec(spec), min_clearance=0.0)
+    return sim_env(spec, NumpyDualArmEnv(task=task), safety=safety)
+
+
 @pytest.mark.parametrize("task,episodes", [("reach", (0, 1, 2)), ("pickup", (0,))])
 def test_arms_sim_observes_moves_and_succeeds_as_the_simulator(task, episodes):
     """~0.5 s per task: the same goals and random actions through --arms sim (ArmsEnv on
@@ -287,7 +304,7 @@ def test_arms_sim_observes_moves_and_succeeds_as_the_simulator(task, episodes):
     link points, clearances, goal distances and success at every step (to 1e-5; in fact
     bit-identical here)."""
     sim = NumpyDualArmEnv(task=task)
-    arms = sim_env(NumpyDualArmEnv(task=task), NumpyDualArmEnv(task=task))
+    arms = _sim_arms_without_clearance_rule(task)
     for ep in episodes:
         _same_step(sim.reset(np.random.default_rng(ep)), arms.reset(np.random.default_rng(ep)))
         rng = np.random.default_rng(100 + ep)
@@ -305,7 +322,7 @@ def test_arms_sim_differs_from_the_simulator_only_where_a_ur3_cannot_reach():
     previous target, counted in ``refused``). Reach, goals of seed 3, random actions: the same
     up to step 27, whose left target (0.375, -0.124, 0.601) m has no joint solution."""
     sim = NumpyDualArmEnv(task="reach")
-    arms = sim_env(NumpyDualArmEnv(task="reach"), NumpyDualArmEnv(task="reach"))
+    arms = _sim_arms_without_clearance_rule("reach")
     sim.reset(np.random.default_rng(3))
     arms.reset(np.random.default_rng(3))
     rng = np.random.default_rng(103)
@@ -447,9 +464,9 @@ def test_full_rotation_fit_recovers_a_tilted_base_exactly():
 
 
 @pytest.mark.parametrize("w, b, msg", [
-    (np.zeros((3, 3)), np.zeros((3, 3)), "at least 4"),
-    (np.c_[np.arange(5.0), np.zeros(5), np.zeros(5)] * 0.1,
-     np.c_[np.arange(5.0), np.zeros(5), np.zeros(5)] * 0.1, "one line"),
+    (np.zeros((5, 3)), np.zeros((5, 3)), "at least 6"),
+    (np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)] * 0.1,
+     np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)] * 0.1, "one line"),
     (np.full((4, 3), np.nan), np.zeros((4, 3)), "NaN"),
     (np.zeros((4, 2)), np.zeros((4, 3)), "rows of"),
 ])

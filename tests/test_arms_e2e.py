@@ -17,7 +17,7 @@ import pytest
 from daddpg_jax.deploy.limits import SHIPPED
 from tests.reach_controller import write_reach_controller
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.usefixtures("arm_recorder")]
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SERVE = os.path.join(ROOT, "experiments", "serve.py")

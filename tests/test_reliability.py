@@ -23,9 +23,9 @@ from daddpg_jax.algo import train as algo_train
 from daddpg_jax.cli import export as export_cli
 from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running import runner
+from daddpg_jax.running import run_record, runner
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
 from daddpg_jax.running.runner import (
-    METRIC_COLUMNS,
     NonFiniteLoss,
     RunDirError,
     train,
@@ -33,6 +33,8 @@ from daddpg_jax.running.runner import (
 from mjx_envs.schema import ConfigError
 from tests import conftest, toy_env
 from tests.conftest import T, run_options, tree_equal
+
+pytestmark = pytest.mark.usefixtures("arm_recorder")  # every command checked
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUN_PY = os.path.join(ROOT, "experiments", "run.py")
@@ -185,7 +187,7 @@ def test_metrics_rows_beyond_the_checkpoint_and_torn_rows_are_dropped(env, tmp_p
 def test_metrics_csv_is_replaced_atomically(tmp_path, monkeypatch):
     path = str(tmp_path / "metrics.csv")
     rows = [{"epoch": 1, "env_steps": 10}, {"epoch": 2, "env_steps": 20}]
-    runner._write_rows(path, rows[:1])
+    run_record.write_rows(path, rows[:1])
     before = open(path).read()
 
     def fail(src, dst):
@@ -193,10 +195,10 @@ def test_metrics_csv_is_replaced_atomically(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "replace", fail)
     with pytest.raises(OSError):
-        runner._write_rows(path, rows)
+        run_record.write_rows(path, rows)
     assert open(path).read() == before        # the old file, whole
     monkeypatch.undo()
-    runner._write_rows(path, rows)
+    run_record.write_rows(path, rows)
     assert _epochs(str(tmp_path)) == [1, 2] and not os.path.exists(path + ".tmp")
 
 

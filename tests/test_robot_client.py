@@ -27,6 +27,8 @@ from daddpg_jax.deploy.server import PolicyClient, PolicyServer
 from daddpg_jax.running.export import _env_settings, export_run, export_state
 from mjx_envs.numpy_env import NumpyDualArmEnv
 
+pytestmark = pytest.mark.usefixtures("arm_recorder")  # every command checked
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NO_CLEARANCE_RULE = -1e9
 

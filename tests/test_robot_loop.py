@@ -21,6 +21,8 @@ from daddpg_jax.deploy.safety import SafetyFilter
 from daddpg_jax.deploy.server import PolicyServer
 from mjx_envs.numpy_env import NumpyDualArmEnv
 
+pytestmark = pytest.mark.usefixtures("arm_recorder")  # every command checked
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GOOD = os.path.join(ROOT, "tests", "data", "legacy_reach", "policy.npz")
 

@@ -8,26 +8,31 @@ Examples (daddpg-calibrate = python experiments/calibrate.py)
       --sim-base-error 0.02,0,0,2,0,-0.02,0,-2
 
 --points FILE (JSON): the known world positions of the board's points, m, per arm:
-{"left": [[x, y, z], ...], "right": [[x, y, z], ...]}, at least 4 each (8 recommended, spread
-over the arm's workspace). --measured FILE: the tool centre read on each point in that arm's
-base frame, same layout, rows [x, y, z] or UR poses [x, y, z, rx, ry, rz] (getActualTCPPose).
+{"left": [[x, y, z], ...], "right": [[x, y, z], ...]}, at least 6 each, not on one line,
+spanning at least 10 cm in two directions (8 recommended, spread over the arm's workspace).
+--measured FILE: the tool centre read on each point in that arm's base frame, same layout, rows
+[x, y, z] or UR poses [x, y, z, rx, ry, rz] (getActualTCPPose).
 --ur-hosts LEFT,RIGHT reads them from the arms (read-only RTDE): move the gripper onto each point
 (freedrive) and press Enter. --arms ur-sim rehearses it on the simulated controllers, whose
 bases carry --sim-base-error (per arm dx, dy, dz in m and yaw in degrees, left then right) and
 whose readings --noise-mm of Gaussian noise (RMS per point).
 
 The fit is least squares (--model yaw: a level base, turn about z + offset; full: any
-rotation). The limits file gets a [calibration.left] / [calibration.right] block (replaced on
-each run); --print-only leaves it unchanged. Exit codes: 0 done; 2 bad arguments, files or
-points; 4 the arms cannot be reached.
+rotation); each point's residual and each base are printed. The fit is refused (nothing written)
+when one point contradicts the others (it is named, never dropped), the left and right readings
+are swapped, the readings fit only mirrored or scaled, the RMS or largest residual exceeds the
+limits file's calibration_max_rms_mm / calibration_max_residual_mm (default 3 / 6 mm), a base
+lands on the other arm's nominal base, or (unless --allow-far-base) a base lies more than
+calibration_max_base_offset_m / calibration_max_base_angle_deg (default 0.05 m / 10 deg) from
+its nominal pose. The limits file gets a [calibration.left] / [calibration.right] block
+(replaced on each run); --print-only leaves it unchanged. Exit codes: 0 done; 2 bad arguments,
+files or points, or a refused fit; 4 the arms cannot be reached.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-
-import numpy as np
 
 from daddpg_jax.deploy import calibrate
 from daddpg_jax.deploy.arms import ArmsError
@@ -53,6 +58,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="ur-sim: seed of the noise")
     p.add_argument("--model", choices=calibrate.MODELS, default="yaw",
                    help="yaw: level bases (default); full: any rotation")
+    p.add_argument("--allow-far-base", action="store_true",
+                   help="accept a base farther from its nominal pose than the limits file's "
+                        "calibration_max_base_offset_m / calibration_max_base_angle_deg")
     p.add_argument("--print-only", action="store_true", help="do not write the limits file")
     return p
 
@@ -60,7 +68,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        RobotLimits.load(args.limits)
+        limits = RobotLimits.load(args.limits)
         points = calibrate.read_points(args.points, "--points")
         if args.measured:
             measured = calibrate.read_points(args.measured, "--measured")
@@ -72,22 +80,20 @@ def main(argv=None) -> int:
             if len(hosts) != 2 or not all(hosts):
                 raise calibrate.CalibrationError("--ur-hosts must be LEFT,RIGHT")
             measured = calibrate.measure_ur(points, hosts)
-        result = {}
-        for arm in ARM_KEYS:
-            T, res = calibrate.fit_base(points[arm], measured[arm], args.model)
-            result[arm] = calibrate.entry(T, res)
+        fits = calibrate.fit_arms(points, measured, args.model)
     except (LimitsError, calibrate.CalibrationError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except ArmsError as e:
         print(f"error: {e}", file=sys.stderr)
         return 4
-    for arm in ARM_KEYS:
-        c = result[arm]
-        yaw = np.degrees(np.linalg.norm(c["base_rotvec"]))
-        print(f"{arm} base: position {c['base_pos']} m, rotation {yaw:.3f} deg "
-              f"(rotvec {c['base_rotvec']}); residuals mm {c['residuals_mm']} "
-              f"(rms {c['rms_mm']:.3f})")
+    print("\n".join(calibrate.report_lines(points, fits)))
+    try:
+        calibrate.check_fits(points, measured, fits, args.model, limits, args.allow_far_base)
+    except calibrate.CalibrationError as e:
+        print(f"error: refused: {e}", file=sys.stderr)
+        return 2
+    result = {arm: calibrate.entry(*fits[arm]) for arm in ARM_KEYS}
     if args.print_only:
         return 0
     try:

@@ -19,10 +19,17 @@ task and action layout, else exit 2). A control period without a usable answer i
 missed deadline in which both arms hold; episodes with one are excluded from the results.
 stdout holds the JSON summary; stderr ends with a short human-readable one.
 
-Exit codes: 0 done; 2 bad limits or arguments, the service unreachable at start, or serving a
-policy the robot refuses (control period, task, action layout, SHA-256); 3 aborted on an outage
-of the service (--max-missed, --max-outage-s); 4 the arms cannot be reached, or an arm reports
-a protective or emergency stop.
+Every command to an arm passes one gate last (daddpg_jax/deploy/gate.py): inside the box, within
+the speed cap of the last command, the clearance rule, the finger range; a command that fails is
+held. The task's model (scene, timing, episode length, layout) is the robot's own: the service
+is only checked against it.
+
+Exit codes: 0 done; 2 bad limits or arguments, the service unreachable at start, serving a
+policy the robot refuses (control period, task, task settings, layout, SHA-256), or a start
+pose or measured pose outside the box (nothing moved); 3 aborted on an outage of the service
+(--max-missed, --max-outage-s); 4 the arms cannot be reached, a driver call failed, returned
+False or overran, the readings froze, or an arm reports a protective or emergency stop;
+130 / 143 interrupted by SIGINT / SIGTERM (the arms hold, the summary is written).
 """
 
 from __future__ import annotations
@@ -32,7 +39,8 @@ import json
 import sys
 
 from daddpg_jax.deploy import robot_session as session
-from daddpg_jax.deploy.arms import ARMS_KINDS, ArmsError, ArmsStopped
+from daddpg_jax.deploy.arms import ArmsError, ArmsStopped
+from daddpg_jax.deploy.arms_factory import ARMS_KINDS
 from daddpg_jax.deploy.robot import MAX_MISSED, MAX_OUTAGE_S, OutageMonitor, format_summary
 
 
@@ -112,8 +120,11 @@ def _finish(out: dict, args) -> int:
     """Print and save the summary; the exit code (3 when the run was aborted)."""
     print(json.dumps(out, indent=2), flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+        try:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=2)
+        except OSError as e:
+            _stderr_line(f"error: cannot write --json {args.json!r}: {e.strerror or e}")
     _stderr_line(format_summary(out))
     code, line = session.outcome(out, args.episodes)
     if line:
@@ -131,20 +142,23 @@ def main(argv=None) -> int:
     bad = session.check_options(args.episodes, args.arms, fast=args.fast, perturb=args.perturb,
                                 ur_hosts=args.ur_hosts, sim_base_error=args.sim_base_error,
                                 policy_sha256=args.policy_sha256)
+    bad = bad or session.check_numbers(args)
     if bad:
         return _fail(bad)
-    try:
-        setup = session.prepare(args, report=_stderr_line)
-    except session.SetupError as e:
-        return _fail(str(e), e.exit_code)
-    monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
-    try:
-        out = session.run(setup.env, args.server, setup.token, setup.robot_limits, setup.safety,
-                          args.episodes, monitor, seed=args.seed, fast=args.fast,
-                          perturbation=setup.perturbation, log_dir=args.log,
-                          dry_run=args.dry_run, report=_stderr_line)
-    except (ArmsStopped, ArmsError) as e:
-        return _fail(f"{e}; the run is stopped", 4)
+    with session.Signals() as signals:
+        try:
+            setup = session.prepare(args, report=_stderr_line)
+        except session.SetupError as e:
+            return _fail(str(e), e.exit_code)
+        monitor = OutageMonitor(args.max_missed, args.max_outage_s, report=_stderr_line)
+        try:
+            out = session.run(setup.env, args.server, setup.token, setup.robot_limits,
+                              setup.safety, args.episodes, monitor, seed=args.seed,
+                              fast=args.fast, perturbation=setup.perturbation, log_dir=args.log,
+                              dry_run=args.dry_run, report=_stderr_line,
+                              interrupted=signals.requested)
+        except (ArmsStopped, ArmsError) as e:
+            return _fail(f"{e}; the run is stopped", 4)
     out.update(server=args.server, task=setup.task, arms=args.arms, dry_run=args.dry_run,
                algo=setup.info.get("algo"), policy_sha256=setup.info.get("policy_sha256"),
                seed=args.seed, **session.limits_fields(setup.robot_limits, setup.safety,

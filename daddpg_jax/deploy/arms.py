@@ -18,7 +18,7 @@ conversion, the joint-limit check and an object source. `Arms`:
 - ``home(poses)``: move slowly to the episode's start poses (blocking);
 - ``stop()`` / ``close()``.
 
-Implementations (`make_env`):
+Implementations (`daddpg_jax.deploy.arms_factory.make_env`):
 
 - ``--arms sim``: `daddpg_jax.deploy.ursim.SimArms`, the simulator
   (`mjx_envs.numpy_env.NumpyDualArmEnv`, one `daddpg_jax.deploy.ursim.SimCell` with both
@@ -50,6 +50,7 @@ a suggestion) and ``read()`` returning the world-frame dict of
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from dataclasses import dataclass
 from typing import Protocol
@@ -68,6 +69,8 @@ from daddpg_jax.deploy.arm_frames import (  # noqa: F401 - the frame helpers sta
     tool_down_rotvec,
     within_joint_limits,
 )
+from daddpg_jax.deploy.gate import GatedArms
+from daddpg_jax.deploy.safety import SafetyLimits
 from mjx_envs import observation as obs_lib
 
 NUM_ARMS = 2
@@ -82,8 +85,6 @@ SERVO_SPEED = 0.5
 SERVO_ACCEL = 0.5
 SERVO_LOOKAHEAD_S = 0.1
 SERVO_GAIN = 300.0
-HOME_SPEED = 0.05
-"""moveL to the episode's start pose: tool speed, m/s (slow)"""
 HOME_ACCEL = 0.25
 """moveL acceleration, m/s^2"""
 SERVO_STOP_DECEL = 10.0
@@ -91,9 +92,11 @@ SERVO_STOP_DECEL = 10.0
 
 # the ur_rtde methods URArms calls and with how many arguments (checked against the installed
 # package by tests/test_arms.py)
-CONTROL_CALLS = {"servoL": 6, "servoStop": 1, "moveL": 3, "stopScript": 0, "disconnect": 0}
+CONTROL_CALLS = {"servoL": 6, "servoStop": 1, "moveL": 3, "stopScript": 0, "disconnect": 0,
+                 "setWatchdog": 1, "kickWatchdog": 0}
 RECEIVE_CALLS = {"getActualTCPPose": 0, "getActualTCPSpeed": 0, "getActualQ": 0,
-                 "isProtectiveStopped": 0, "isEmergencyStopped": 0, "disconnect": 0}
+                 "getTimestamp": 0, "isProtectiveStopped": 0, "isEmergencyStopped": 0,
+                 "disconnect": 0}
 
 
 class ArmsError(RuntimeError):
@@ -121,6 +124,9 @@ class ArmsReading:
     link_points: np.ndarray | None = None
     """[2, 5, 3] shoulder, elbow, wrist 1, flange, tool centre in each base frame, when the arms
     measure them (the simulator); None: built from ``joints`` with the DH table"""
+    controller_time: np.ndarray | None = None
+    """[2] each controller's own clock, s (RTDE's timestamp): readings whose controller time
+    does not advance are frozen (`ArmsEnv.observe`); None: not reported"""
 
 
 class Arms(Protocol):
@@ -140,8 +146,8 @@ class Arms(Protocol):
         """Each gripper's finger opening [2], m (not blocking)."""
         ...
 
-    def home(self, poses) -> None:
-        """Move slowly to the start poses [2, 6] (blocking)."""
+    def home(self, poses, speed: float) -> None:
+        """Move in a straight line at ``speed`` m/s to the start poses [2, 6] (blocking)."""
         ...
 
     def stop(self) -> None:
@@ -197,10 +203,11 @@ class RobotiqGripper(Gripper):
     PORT = 63352
 
     def __init__(self, host: str, port: int = PORT, stroke: float = 0.085, speed: int = 255,
-                 force: int = 50, timeout: float = 0.02, read_only: bool = False):
+                 force: int = 50, timeout: float = 0.02, read_only: bool = False,
+                 connect_timeout: float = 1.0):
         self.stroke, self.read_only, self.timeout = float(stroke), bool(read_only), timeout
         try:
-            self.sock = socket.create_connection((host, port), timeout=1.0)
+            self.sock = socket.create_connection((host, port), timeout=connect_timeout)
         except OSError as e:
             raise ArmsError(f"cannot connect to the gripper at {host}:{port}: "
                             f"{e.strerror or e}") from None
@@ -260,31 +267,146 @@ class NoObject:
 
 # -- UR arms ---------------------------------------------------------------------------------
 
+CALL_TIMEOUT_S = 0.5
+"""Default bound of one driver call, s (`URArms`; the limits file's ``call_timeout``)."""
+CONNECT_TIMEOUT_S = 2.0
+"""Default bound of connecting to an arm or a gripper, s (the limits' ``connect_timeout``)."""
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:200] or type(e).__name__
+
+
+def bounded(fn, timeout: float, what: str):
+    """``fn()`` run on a helper thread, its result; ArmsError (one line) when it raises or has
+    not returned after ``timeout`` s (the thread is left behind, a daemon: drivers such as
+    ur_rtde's constructors take no timeout of their own)."""
+    box: dict = {}
+
+    def call():
+        try:
+            box["out"] = fn()
+        except BaseException as e:  # noqa: BLE001 - reported on the caller's thread
+            box["err"] = e
+
+    t = threading.Thread(target=call, daemon=True, name=f"connect {what}")
+    t.start()
+    t.join(timeout)
+    if t.is_alive():
+        raise ArmsError(f"{what} did not answer within {timeout:g} s")
+    if "err" in box:
+        e = box["err"]
+        if isinstance(e, ArmsError):
+            raise e
+        raise ArmsError(f"cannot connect to {what}: {_one_line(e)}")
+    return box["out"]
+
+
+class CallGuard:
+    """Bounds every driver call of `URArms` to ``timeout`` s: a call that has not returned by
+    then is reported through ``on_overrun(line)`` from a guard thread (default: the line on
+    stderr and exit 4, since the call cannot be interrupted; the controller's watchdog stops the
+    arms once nothing kicks it). A call that returns late raises ArmsError on its own thread."""
+
+    def __init__(self, timeout: float, on_overrun=None, clock=time.perf_counter):
+        self.timeout, self.clock = float(timeout), clock
+        self.on_overrun = on_overrun or _exit_on_overrun
+        self._what: str | None = None
+        self._since = 0.0
+        self._limit = self.timeout
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> CallGuard:
+        self._thread = threading.Thread(target=self._watch, daemon=True, name="driver guard")
+        self._thread.start()
+        return self
+
+    def _watch(self):
+        while not self._stop.wait(min(0.05, self.timeout / 4)):
+            what, since, limit = self._what, self._since, self._limit
+            if what is not None and self.clock() - since > limit:
+                self._what = None
+                self.on_overrun(f"error: the driver call {what} has not returned after "
+                                f"{limit * 1e3:g} ms; the run is stopped")
+
+    def call(self, what: str, fn, *args, timeout: float | None = None, command: bool = True):
+        """``fn(*args)``; ArmsError (one line) when it raises, takes longer than ``timeout``
+        (default the guard's) or, for a ``command``, returns False."""
+        limit = self.timeout if timeout is None else float(timeout)
+        self._limit, self._what, self._since = limit, what, self.clock()
+        try:
+            out = fn(*args)
+        except ArmsStopped:
+            raise
+        except Exception as e:  # noqa: BLE001 - any driver failure ends the run in one line
+            raise ArmsError(f"{what} failed: {_one_line(e)}") from None
+        finally:
+            took = self.clock() - self._since
+            self._what = None
+        if command and out is False:
+            raise ArmsError(f"{what} returned False (the controller refused the command)")
+        if took > limit:
+            raise ArmsError(f"{what} took {took * 1e3:.0f} ms (limit {limit * 1e3:g} ms)")
+        return out
+
+    def close(self):
+        self._stop.set()
+
+
+def _exit_on_overrun(line: str):  # pragma: no cover - ends the process
+    import os  # noqa: PLC0415 - lazy: only on a hung driver call
+    import sys  # noqa: PLC0415 - lazy: only on a hung driver call
+
+    print(line, file=sys.stderr, flush=True)
+    os._exit(4)
+
+
 class URArms:
     """Two UR arms through ur_rtde-style objects (real ``RTDEControlInterface`` /
     ``RTDEReceiveInterface`` or `daddpg_jax.deploy.ursim`'s): ``controls`` (None in a dry run:
     read-only, nothing is sent; ``sent`` records what would have been), ``receives``,
     ``grippers`` (one `Gripper` per arm). A hold is a servoL of the held pose; servoStop comes
-    only from ``stop()`` (abort or exit)."""
+    only from ``stop()`` (abort or exit).
 
-    def __init__(self, controls, receives, grippers, period: float, clock=time.perf_counter):
+    Every driver call passes ``guard`` (`CallGuard`): one that raises, returns False or
+    overruns ends the run (ArmsError, one line). ``watchdog``: seconds; at the first servoL the
+    controllers' own watchdog is armed (``setWatchdog(1 / watchdog)``) and it is kicked every
+    period, so that an arm stops when the client stops talking."""
+
+    def __init__(self, controls, receives, grippers, period: float, clock=time.perf_counter,
+                 guard: CallGuard | None = None, watchdog: float | None = None):
         self.controls, self.receives, self.grippers = controls, receives, list(grippers)
         self.period, self.clock = float(period), clock
+        self.guard = guard or CallGuard(CALL_TIMEOUT_S, clock=clock)
+        self.watchdog = watchdog
+        self.watchdog_armed = False
         self.dry_run = controls is None
         self.sent: list[dict] = []
         self.stopped = False
 
+    def _each(self, what: str, objs, method: str, *args, command: bool = False) -> list:
+        return [self.guard.call(f"{method} ({name} {what})", getattr(o, method), *args,
+                                command=command) for name, o in zip(ARM_NAMES, objs)]
+
     def read(self) -> ArmsReading:
-        raise_if_stopped([r.isEmergencyStopped() for r in self.receives],
-                         [r.isProtectiveStopped() for r in self.receives])
+        g = self.guard.call
+        raise_if_stopped(self._each("arm", self.receives, "isEmergencyStopped"),
+                         self._each("arm", self.receives, "isProtectiveStopped"))
         t = self.clock()
-        pose = np.array([r.getActualTCPPose() for r in self.receives], float)
-        speed = np.array([r.getActualTCPSpeed() for r in self.receives], float)
-        q = np.array([r.getActualQ() for r in self.receives], float)
-        fingers = np.array([g.openings() for g in self.grippers], float)
-        speeds = [g.speeds() for g in self.grippers]
+        pose = np.array(self._each("arm", self.receives, "getActualTCPPose"), float)
+        speed = np.array(self._each("arm", self.receives, "getActualTCPSpeed"), float)
+        q = np.array(self._each("arm", self.receives, "getActualQ"), float)
+        stamps = np.array(self._each("arm", self.receives, "getTimestamp"), float)
+        fingers = np.array([g(f"openings ({n} gripper)", gr.openings, command=False)
+                            for n, gr in zip(ARM_NAMES, self.grippers)], float)
+        speeds = [gr.speeds() for gr in self.grippers]
         fs = None if any(v is None for v in speeds) else np.array(speeds, float)
-        return ArmsReading(pose, speed, q, fingers, t, fs)
+        if pose.shape != (NUM_ARMS, 6) or q.shape != (NUM_ARMS, 6) or not (
+                np.all(np.isfinite(pose)) and np.all(np.isfinite(q))):
+            raise ArmsError("the arms reported a pose or joint angles that are not 6 finite "
+                            "numbers")
+        return ArmsReading(pose, speed, q, fingers, t, fs, controller_time=stamps)
 
     def _dry(self, command: str, values) -> bool:
         """In a dry run, records what `command` would send (in ``sent``) and returns True."""
@@ -296,46 +418,62 @@ class URArms:
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
         if self._dry("servoL", poses):
             return
-        for c, p in zip(self.controls, poses):
-            c.servoL(p.tolist(), SERVO_SPEED, SERVO_ACCEL, self.period, SERVO_LOOKAHEAD_S,
-                     SERVO_GAIN)
+        if self.watchdog and not self.watchdog_armed:
+            self._each("arm", self.controls, "setWatchdog", 1.0 / self.watchdog, command=True)
+            self.watchdog_armed = True
+        for name, c, p in zip(ARM_NAMES, self.controls, poses):
+            if self.watchdog_armed:
+                self.guard.call(f"kickWatchdog ({name} arm)", c.kickWatchdog)
+            self.guard.call(f"servoL ({name} arm)", c.servoL, p.tolist(), SERVO_SPEED,
+                            SERVO_ACCEL, self.period, SERVO_LOOKAHEAD_S, SERVO_GAIN)
 
     def grip(self, openings) -> None:
         openings = np.asarray(openings, float).reshape(NUM_ARMS)
         if self._dry("grip", openings):
             return
-        for g, o in zip(self.grippers, openings):
-            g.move(float(o))
+        for name, g, o in zip(ARM_NAMES, self.grippers, openings):
+            self.guard.call(f"move ({name} gripper)", g.move, float(o))
 
-    def home(self, poses) -> None:
+    def home(self, poses, speed: float) -> None:
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
         if self._dry("moveL", poses):
             return
-        for c, p in zip(self.controls, poses):
-            c.moveL(p.tolist(), HOME_SPEED, HOME_ACCEL)
+        reading = self.read()
+        for i, (name, c, p) in enumerate(zip(ARM_NAMES, self.controls, poses)):
+            # a straight line at the cap's speed: bounded by its length and speed (twice, and
+            # the acceleration's share), not by one period's call timeout
+            length = float(np.linalg.norm(p[:3] - reading.tool_pose[i, :3]))
+            limit = self.guard.timeout + 2.0 * (length / speed + speed / HOME_ACCEL)
+            self.guard.call(f"moveL ({name} arm)", c.moveL, p.tolist(), float(speed),
+                            HOME_ACCEL, timeout=limit)
 
     def stop(self) -> None:
+        """servoStop on both arms (each tried, whatever the other does)."""
         if not self.dry_run and not self.stopped:
             for c in self.controls:
-                c.servoStop(SERVO_STOP_DECEL)
+                try:
+                    c.servoStop(SERVO_STOP_DECEL)
+                except Exception:  # noqa: BLE001, S110 - the other arm must stop too
+                    pass
         self.stopped = True
 
     def close(self) -> None:
         try:
             self.stop()
         finally:
-            for c in self.controls or ():
-                c.stopScript()
-                c.disconnect()
-            for r in self.receives:
-                r.disconnect()
-            for g in self.grippers:
-                g.close()
+            self.guard.close()
+            for x in [*(self.controls or ()), *self.receives, *self.grippers]:
+                for method in ("stopScript", "disconnect", "close"):
+                    if hasattr(x, method) and not (x in self.receives and method == "close"):
+                        try:
+                            getattr(x, method)()
+                        except Exception:  # noqa: BLE001, S110 - release the others
+                            pass
 
 
-def receive_only(hosts) -> list:
+def receive_only(hosts, timeout: float = CONNECT_TIMEOUT_S) -> list:
     """Read-only ``RTDEReceiveInterface`` connections to ``hosts`` (left, right); ArmsError
-    (one line) when ur_rtde is missing or an arm cannot be reached."""
+    (one line) when ur_rtde is missing or an arm cannot be reached within ``timeout`` s."""
     try:  # lazy: the optional extra [ur]
         import rtde_receive
     except ImportError:
@@ -343,43 +481,52 @@ def receive_only(hosts) -> list:
     out = []
     for name, host in zip(ARM_NAMES, hosts):
         try:
-            out.append(rtde_receive.RTDEReceiveInterface(host))
-        except RuntimeError as e:
+            out.append(bounded(lambda h=host: rtde_receive.RTDEReceiveInterface(h), timeout,
+                               f"the {name} arm at {host}"))
+        except ArmsError:
             for r in out:
                 r.disconnect()
-            raise ArmsError(f"cannot connect to the {name} arm at {host}: "
-                            f"{' '.join(str(e).split())[:200]}") from None
+            raise
     return out
 
 
-def connect_ur(hosts, period: float, dry_run: bool = False, gripper_factory=None) -> URArms:
+def connect_ur(hosts, period: float, dry_run: bool = False, gripper_factory=None,
+               connect_timeout: float = CONNECT_TIMEOUT_S, call_timeout: float = CALL_TIMEOUT_S,
+               watchdog: float | None = None) -> URArms:
     """`URArms` on two real controllers (``hosts``: left, right). ``ur_rtde`` is imported here
     (the optional extra ``[ur]``). ArmsError (one line) when it is missing or an arm or gripper
-    cannot be reached. gripper_factory(host, read_only) -> Gripper (default `RobotiqGripper`)."""
+    cannot be reached within ``connect_timeout`` s. gripper_factory(host, read_only) -> Gripper
+    (default `RobotiqGripper`); call_timeout, watchdog: see `URArms`."""
     try:  # lazy: the optional extra [ur]; the rest of the robot side runs without it
         import rtde_control
         import rtde_receive
     except ImportError:
         raise ArmsError("ur_rtde is not installed: pip install 'daddpg-jax[ur]'") from None
-    factory = gripper_factory or (lambda h, ro: RobotiqGripper(h, read_only=ro))
+    factory = gripper_factory or (lambda h, ro: RobotiqGripper(h, read_only=ro,
+                                                               connect_timeout=connect_timeout))
     controls, receives, grippers = [], [], []
     try:
         for name, host in zip(ARM_NAMES, hosts):
-            try:
-                receives.append(rtde_receive.RTDEReceiveInterface(host))
-                if not dry_run:
-                    controls.append(rtde_control.RTDEControlInterface(host))
-            except RuntimeError as e:
-                raise ArmsError(f"cannot connect to the {name} arm at {host}: "
-                                f"{' '.join(str(e).split())[:200]}") from None
-            grippers.append(factory(host, dry_run))
+            what = f"the {name} arm at {host}"
+            receives.append(bounded(lambda h=host: rtde_receive.RTDEReceiveInterface(h),
+                                    connect_timeout, what))
+            if not dry_run:
+                controls.append(bounded(lambda h=host: rtde_control.RTDEControlInterface(h),
+                                        connect_timeout, what))
+            grippers.append(bounded(lambda h=host: factory(h, dry_run), connect_timeout,
+                                    f"the {name} gripper at {host}"))
     except ArmsError:
         for x in controls + receives:
-            x.disconnect()
+            try:
+                x.disconnect()
+            except Exception:  # noqa: BLE001, S110 - release the others
+                pass
         for g in grippers:
             g.close()
         raise
-    return URArms(None if dry_run else controls, receives, grippers, period)
+    guard = CallGuard(call_timeout).start()
+    return URArms(None if dry_run else controls, receives, grippers, period, guard=guard,
+                  watchdog=watchdog)
 
 
 # -- the env API on top of an Arms ------------------------------------------------------------
@@ -392,13 +539,21 @@ class ArmsEnv:
     `mjx_envs.observation` from the arms' read-out and ``objects`` (an object source).
     ``truth``: a callable returning the true (arm readings, object readings) of a simulated
     cell (`daddpg_jax.deploy.ursim.SimCell.truth`); when given, achieved goals and success are
-    the cell's ground truth, else (real arms) what the arms report in the calibrated frame."""
+    the cell's ground truth, else (real arms) what the arms report in the calibrated frame.
 
-    def __init__(self, spec, arms, bases=None, objects=None, truth=None):
-        self.spec, self.arms, self.truth = spec, arms, truth
+    Every command passes the gate (`daddpg_jax.deploy.gate.GatedArms`, ``self.arms``) with
+    ``safety`` (a `SafetyLimits`; None: the simulator's own limits, `safety_of_spec`).
+    ``clock``: monotonic seconds; each observation carries ``read_s`` (how long the read took)
+    and ``frozen_s`` (how long the controllers' clocks have not advanced)."""
+
+    def __init__(self, spec, arms, bases=None, objects=None, truth=None, safety=None,
+                 clock=time.perf_counter):
+        self.spec, self.truth, self.clock = spec, truth, clock
         self.bases = nominal_bases() if bases is None else np.asarray(bases, float)
         self.inv = np.stack([invert(T) for T in self.bases])
         self.down = np.stack([tool_down_rotvec(T) for T in self.bases])
+        self.safety = safety_of_spec(spec) if safety is None else safety
+        self.arms = GatedArms(arms, self.safety, self.bases, spec.dt, self.down)
         self.objects = objects if objects is not None else NoObject()
         self.config, self.task = spec.config, spec.task
         self.episode_length, self.dt = spec.episode_length, spec.dt
@@ -406,6 +561,8 @@ class ArmsEnv:
         self._goal = np.zeros((NUM_ARMS, 3), np.float32)
         self._prev_fingers = self._last_fingers = None
         self._t, self._fingers_t = 0, 0
+        self._stamp: np.ndarray | None = None  # the controllers' last clock readings
+        self._advanced_at = np.zeros(NUM_ARMS)  # when each last advanced (``clock``)
         self.refused = 0  # targets refused for want of a joint solution within the limits
 
     # frames
@@ -425,11 +582,29 @@ class ArmsEnv:
         links[:, -1] = grip  # the measured tool centre
         return grip, vel, links
 
+    def _frozen_s(self, reading: ArmsReading, now: float) -> float:
+        """How long the longest-frozen controller clock has not advanced, s (0: advancing or
+        not reported)."""
+        stamp = reading.controller_time
+        if stamp is None:
+            return 0.0
+        stamp = np.asarray(stamp, float).reshape(NUM_ARMS)
+        if self._stamp is None:
+            self._advanced_at[:] = now
+        else:
+            moved = stamp > self._stamp
+            self._advanced_at[moved] = now
+        self._stamp = np.where(np.isfinite(stamp), stamp, -np.inf)
+        return float(np.max(now - self._advanced_at))
+
     def observe(self):
-        """A fresh `mjx_envs.numpy_env.StepResult` from the arms (``captured_at`` set)."""
+        """A fresh `mjx_envs.numpy_env.StepResult` from the arms (``captured_at``, ``read_s``,
+        ``frozen_s`` set)."""
         from mjx_envs.numpy_env import StepResult  # lazy: MuJoCo; NumPy only at import
 
+        t0 = self.clock()
         r = self.arms.read()
+        t1 = self.clock()
         self._joints = r.joints
         grip, vel, links = self._world(r)
         fingers = r.fingers
@@ -456,10 +631,14 @@ class ArmsEnv:
                          arm_clearance=float(obs_lib.arm_clearance(np, arm["link_points"])),
                          step=self._t)
         res.captured_at = r.captured_at
+        res.read_s = t1 - t0
+        res.frozen_s = self._frozen_s(r, t1)
         return res
 
     # the env API
     def reset(self, rng=None, goal=None, qpos=None):
+        """A new episode: the goal and start drawn (or given), the object placed, the arms
+        moved to the start pose through the gate (`GateRefusal` when it cannot start)."""
         if goal is None or qpos is None:
             rng = rng if rng is not None else np.random.default_rng()
             goal = self.spec.sample_goal(rng) if goal is None else goal
@@ -500,10 +679,13 @@ class ArmsEnv:
         return out
 
     def step_targets(self, target, ctrl):
-        self._target = self._reachable(np.asarray(target, np.float32).reshape(NUM_ARMS, 3))
+        """Sends the targets [2, 3] (world) and the finger commands through the gate; the
+        targets are what the gate let through (the last commanded ones when it refused)."""
+        target = self._reachable(np.asarray(target, np.float32).reshape(NUM_ARMS, 3))
         ctrl = np.asarray(ctrl, np.float32).reshape(NUM_ARMS, 2)
         self.arms.grip(ctrl[:, 0])
-        self.arms.servo(self.to_base_poses(self._target))
+        if self.arms.servo(self.to_base_poses(target)) is not None:
+            self._target = np.asarray(self.arms.last_world, np.float32)
         self._t += 1
         return self.observe()
 
@@ -519,38 +701,12 @@ class ArmsEnv:
         self.arms.close()
 
 
-ARMS_KINDS = ("sim", "ur", "ur-sim")
-
-
-def make_env(kind: str, task_cfg, task: str, period: float, bases=None, hosts=None,
-             dry_run: bool = False, base_error=None, exact: bool = True) -> ArmsEnv:
-    """The loop's `ArmsEnv` for ``--arms kind``: ``sim`` `daddpg_jax.deploy.ursim.SimArms` on
-    the simulator (whose bases are exactly the nominal ones: ``bases`` is not used);
-    ``ur`` `URArms` on the controllers at ``hosts`` (left, right; reach only: no object source
-    for a real cell is built in); ``ur-sim`` `URArms` on simulated controllers whose bases
-    carry ``base_error`` ((offset [2, 3] m, yaw [2] rad)). ``bases``: the robot side's world <-
-    base transforms of ``ur`` and ``ur-sim`` (`RobotLimits.base_transforms`). ArmsError (one
-    line) when it cannot be made."""
-    from mjx_envs.numpy_env import NumpyDualArmEnv  # lazy: MuJoCo; NumPy only at import
-
-    if kind not in ARMS_KINDS:
-        raise ArmsUsageError(f"--arms must be one of {', '.join(ARMS_KINDS)}, got {kind!r}")
-    if kind == "sim" and dry_run:
-        raise ArmsUsageError("--dry-run needs --arms ur or ur-sim (the simulator moves nothing)")
-    spec = NumpyDualArmEnv(task_cfg, task=task, exact=exact)
-    if kind == "sim":
-        from daddpg_jax.deploy.ursim import sim_env  # lazy: ursim imports this module
-
-        return sim_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact))
-    if kind == "ur-sim":
-        from daddpg_jax.deploy.ursim import sim_ur_env  # lazy: ursim imports this module
-
-        offset, yaw = (None, None) if base_error is None else base_error
-        return sim_ur_env(spec, NumpyDualArmEnv(task_cfg, task=task, exact=exact), period,
-                          bases=bases, offset=offset, yaw=yaw, dry_run=dry_run)
-    if spec.rules.has_object:
-        raise ArmsUsageError(f"--arms ur runs reach only: the {task!r} task needs an object source "
-                        f"(a camera; see docs/DEPLOYMENT.md)")
-    if hosts is None or len(hosts) != 2 or not all(hosts):
-        raise ArmsUsageError("--arms ur needs --ur-hosts LEFT,RIGHT")
-    return ArmsEnv(spec, connect_ur(hosts, period, dry_run=dry_run), bases=bases)
+def safety_of_spec(spec):
+    """The simulator's own limits of ``spec`` (its boxes, one full action step, its arm
+    clearance, its finger stroke): what a library user gets without a limits file."""
+    cfg = spec.config
+    return SafetyLimits(workspace_low=np.asarray(spec.ws_low, np.float32),
+                        workspace_high=np.asarray(spec.ws_high, np.float32),
+                        max_step=float(np.sqrt(3.0) * spec.max_delta),
+                        min_clearance=float(cfg.arm_clearance), deadline_s=float(spec.dt),
+                        finger_low=0.0, finger_high=float(cfg.finger_stroke))

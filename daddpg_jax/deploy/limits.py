@@ -43,6 +43,9 @@ MAX_DEADLINE = 10.0
 """Largest deadline a limits file may set, s. A paced run (a robot) also needs deadline <=
 control_period; only unpaced sim-to-sim runs (``--fast``) may wait longer."""
 MAX_FINGER = 0.1
+MAX_DRIVER_WAIT = 2.0
+"""Largest ``connect_timeout``, ``call_timeout``, ``max_reading_gap`` and ``watchdog``, s: no
+connection or driver call may keep the client waiting longer."""
 SHIPPED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "limits")
 """Folder of the shipped limits files."""
 
@@ -74,7 +77,18 @@ class RobotLimits:
     (``{"left": {"base_pos": [x, y, z], "base_rotvec": [rx, ry, rz], "residuals_mm": [...]},
     "right": {...}}``, written by ``daddpg-calibrate``; None: the nominal
     `daddpg_jax.deploy.ur3.BASE_POS` / ``BASE_YAW``), used for every conversion between the
-    world and the arms' base frames (`base_transforms`).
+    world and the arms' base frames (`base_transforms`); calibration_max_rms_mm /
+    calibration_max_residual_mm: largest RMS / single residual of a calibration's points, mm
+    (``daddpg-calibrate`` refuses a fit over them, `check_calibration` a calibration over them
+    or without residuals); calibration_max_base_offset_m / calibration_max_base_angle_deg:
+    farthest a fitted base may lie from the nominal one (distance, m; rotation angle, degrees)
+    before ``daddpg-calibrate`` asks for ``--allow-far-base``; connect_timeout: longest wait
+    for a connection to an arm or a gripper; call_timeout: longest driver call (a call that
+    raises, returns False or takes longer ends the run, exit 4); max_reading_gap: longest time
+    the arms' readings may stay unusable (a frozen controller clock, a read slower than the
+    deadline) before the run ends (exit 4; the arms hold meanwhile); watchdog: the controllers'
+    own watchdog (an arm stops when the client has not kicked it for this long; at least
+    ``deadline + control_period`` is used). Each of these four is in (0, 2] s.
     """
 
     workspace_low: tuple = DEFAULT_BOX_LOW
@@ -88,6 +102,14 @@ class RobotLimits:
     task: str = ""
     max_observation_age: float = 0.08
     calibration: Mapping | None = None
+    calibration_max_rms_mm: float = 3.0
+    calibration_max_residual_mm: float = 6.0
+    calibration_max_base_offset_m: float = 0.05
+    calibration_max_base_angle_deg: float = 10.0
+    connect_timeout: float = 2.0
+    call_timeout: float = 0.5
+    max_reading_gap: float = 0.5
+    watchdog: float = 0.2
     source: str = "built-in defaults"
 
     def __post_init__(self):
@@ -109,10 +131,20 @@ class RobotLimits:
         _number("finger_max", self.finger_max, low=self.finger_min, high=MAX_FINGER)
         _number("max_observation_age", self.max_observation_age, low=0.0, high=10.0,
                 low_open=True)
+        for name in ("connect_timeout", "call_timeout", "max_reading_gap", "watchdog"):
+            _number(name, getattr(self, name), low=0.0, high=MAX_DRIVER_WAIT, low_open=True)
         if not isinstance(self.task, str) or len(self.task) > 64:
             raise LimitsError(f"task must be a short string, got {self.task!r}")
         if self.calibration is not None:
             object.__setattr__(self, "calibration", _calibration(self.calibration))
+        _number("calibration_max_rms_mm", self.calibration_max_rms_mm, low=0.0, high=100.0,
+                low_open=True)
+        _number("calibration_max_residual_mm", self.calibration_max_residual_mm, low=0.0,
+                high=100.0, low_open=True)
+        _number("calibration_max_base_offset_m", self.calibration_max_base_offset_m, low=0.0,
+                high=MAX_COORD, low_open=True)
+        _number("calibration_max_base_angle_deg", self.calibration_max_base_angle_deg, low=0.0,
+                high=180.0, low_open=True)
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -144,7 +176,8 @@ class RobotLimits:
 
     @classmethod
     def load(cls, path) -> RobotLimits:
-        """Limits from a ``.toml`` or ``.json`` file; LimitsError (one line) on any problem."""
+        """Limits from a ``.toml`` or ``.json`` file; LimitsError (one line) on any problem,
+        a key given twice in one table or object included (in either format)."""
         path = os.fspath(path)
         ext = os.path.splitext(path)[1].lower()
         if ext not in (".toml", ".json"):
@@ -156,12 +189,21 @@ class RobotLimits:
             raise LimitsError(f"cannot read limits file {path!r}: {e.strerror or e}") from None
         if len(raw) > 1024 * 1024:
             raise LimitsError(f"limits file {path!r} is larger than 1 MiB")
+
+        def unique_keys(pairs):  # a key given twice is refused, as TOML refuses it
+            out = {}
+            for k, v in pairs:
+                if k in out:
+                    raise LimitsError(f"duplicate key {k[:64]!r}")
+                out[k] = v
+            return out
+
         try:
             text = raw.decode("utf-8")
             if ext == ".toml":
                 d = tomllib.loads(text)
             else:
-                d = json.loads(text, parse_constant=_no_constant)
+                d = json.loads(text, parse_constant=_no_constant, object_pairs_hook=unique_keys)
         except (UnicodeDecodeError, ValueError, RecursionError) as e:  # TOMLDecodeError too
             msg = " ".join(str(e).split())[:200]
             raise LimitsError(f"limits file {path!r} is not valid {ext[1:].upper()}: "
@@ -264,6 +306,32 @@ class RobotLimits:
             out[i, :3, 3] = c["base_pos"]
         return out
 
+    def check_calibration(self) -> None:
+        """Refuses (LimitsError, one line) a calibration whose arm carries fewer than
+        `MIN_CALIBRATION_POINTS` residuals (none: not written by ``daddpg-calibrate``), or
+        whose residuals' RMS (recomputed, and ``rms_mm`` as written) or largest residual exceeds
+        ``calibration_max_rms_mm`` / ``calibration_max_residual_mm``. No calibration (the
+        nominal bases) passes."""
+        if self.calibration is None:
+            return
+        for arm in ARM_KEYS:
+            c = self.calibration[arm]
+            res = np.asarray(c.get("residuals_mm", ()), float)
+            where = f"the calibration of the {arm} arm ({self.source})"
+            if len(res) < MIN_CALIBRATION_POINTS:
+                raise LimitsError(f"{where} carries {len(res)} residuals (at least "
+                                  f"{MIN_CALIBRATION_POINTS} needed): rerun daddpg-calibrate")
+            rms = max(float(np.sqrt(np.mean(res ** 2))), float(c.get("rms_mm", 0.0)))
+            if rms > self.calibration_max_rms_mm:
+                raise LimitsError(f"{where} has an RMS residual of {rms:.3g} mm, over "
+                                  f"calibration_max_rms_mm {self.calibration_max_rms_mm:g}: "
+                                  f"rerun daddpg-calibrate")
+            k = int(np.argmax(res))
+            if res[k] > self.calibration_max_residual_mm:
+                raise LimitsError(f"{where} has a residual of {res[k]:.3g} mm at point {k + 1}, "
+                                  f"over calibration_max_residual_mm "
+                                  f"{self.calibration_max_residual_mm:g}: rerun daddpg-calibrate")
+
     def describe(self, speed_scale: float = 1.0) -> str:
         """One line: the limits in use and where they come from."""
         box = "; ".join(f"{a} {list(lo)}..{list(hi)}" for a, lo, hi in
@@ -297,6 +365,8 @@ def _number(name: str, v, low: float | None = None, high: float | None = None,
 
 
 MAX_RESIDUAL_ROWS = 64
+MIN_CALIBRATION_POINTS = 6
+"""Fewest points per arm of a calibration (``daddpg-calibrate``, `check_calibration`)."""
 
 
 def _calibration(v) -> dict:

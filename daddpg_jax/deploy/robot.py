@@ -215,6 +215,24 @@ class ServiceOutage(Exception):
         self.episode: dict | None = None
 
 
+class Interrupted(Exception):
+    """The run was asked to stop (SIGINT, SIGTERM); ``signal``: the signal's number."""
+
+    def __init__(self, message: str, signal: int):
+        super().__init__(message)
+        self.signal = signal
+        self.episode: dict | None = None
+
+
+class ReadingsLost(Exception):
+    """The arms' readings stayed unusable (frozen, slower than the deadline) longer than the
+    limits allow; the run ends (exit 4). ``episode``: the interrupted episode's summary."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.episode: dict | None = None
+
+
 class OutageMonitor:
     """Follows the policy service's missed deadlines (control periods without a usable answer
     in time, in which the robot held) and gives up on a lasting outage.
@@ -329,11 +347,11 @@ def _episode_summary(res, stops, errors, clear_min, rtts, complete=True, stale=0
                 step_ms=[round(float(x), 3) for x in step_ms], complete=complete)
 
 
-def _log_step(log, t, age, seen, goal, answer, info, decision, ctrl, missed_why):
+def _log_step(log, t, age, seen, goal, action, info, decision, ctrl, missed_why):
     log.append(dict(t=round(float(t), 6), obs_age_ms=round(age * 1e3, 3),
                     observation=np.asarray(seen, float).round(6).tolist(),
                     desired_goal=np.asarray(goal, float).round(6).tolist(),
-                    action=None if answer is None else np.asarray(answer, float).tolist(),
+                    action=None if action is None else np.asarray(action, float).tolist(),
                     target=np.asarray(decision.target, float).tolist(),
                     finger_ctrl=np.asarray(ctrl, float).tolist(), stopped=bool(decision.stopped),
                     reasons=list(decision.reasons), missed=missed_why,
@@ -353,6 +371,20 @@ def _judge(safety, answer, info, rtt, deadline, age, max_age):
         return action, (f"stale observation ({age * 1e3:.1f} ms old > {max_age * 1e3:.1f} "
                         f"ms)"), "stale"
     return action, None, None
+
+
+def _reading_fault(res, deadline: float, max_age: float | None) -> str | None:
+    """Why the arms' reading in ``res`` cannot be used (hold), or None: the read took longer
+    than the deadline, or the controllers' clocks have not advanced for longer than the
+    observation age (`daddpg_jax.deploy.arms.ArmsEnv.observe` sets ``read_s`` and
+    ``frozen_s``; other envs have neither)."""
+    read_s = getattr(res, "read_s", 0.0)
+    if read_s > deadline:
+        return f"slow arm reading ({read_s * 1e3:.1f} ms > {deadline * 1e3:.1f} ms)"
+    frozen_s = getattr(res, "frozen_s", 0.0)
+    if frozen_s > (max_age if max_age is not None else deadline):
+        return f"frozen arm readings (the controller clock stopped {frozen_s * 1e3:.0f} ms ago)"
+    return None
 
 
 def _report(monitor: OutageMonitor | None, why: str | None, sent_at: float, where: str):
@@ -390,7 +422,8 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
                 monitor: OutageMonitor | None = None, episode: int = 0,
                 perturbation=None, perturb_rng: np.random.Generator | None = None,
                 action_history: int | None = None, pacer: Pacer | None = None,
-                max_observation_age: float | None = None, log: dict | None = None) -> dict:
+                max_observation_age: float | None = None, log: dict | None = None,
+                max_reading_gap: float | None = None, interrupted=None) -> dict:
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
@@ -405,6 +438,12 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     log: a dict that receives the episode's log (goal, initial state, and per step the
     observation, its age, the answer, the safety decision, the targets sent and the times);
     ``replay_episode`` replays it in the simulator.
+    A period whose arm reading is unusable (`_reading_fault`: slower than the deadline, or the
+    controllers' clocks frozen for longer than ``max_observation_age``) holds both arms without
+    asking the service (``stale``); readings unusable for longer than ``max_reading_gap`` s
+    raise `ReadingsLost`. interrupted: callable returning None or (signal, reason), asked at
+    every period's start; a request raises `Interrupted` (the episode's summary in
+    ``.episode``).
     perturbation: a ``mjx_envs.perturb.Perturbation`` (the trainer's observation noise,
     dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to what the
     policy sees and sends; the safety layer sees the true state. action_history: the policy's k
@@ -427,20 +466,44 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
     stops, stale, rtts, errors, step_ms = 0, 0, [], [], []
     clear_min = res.arm_clearance
+    fault_since = None
     if pacer is not None:
         pacer.restart()
+
+    def partial():
+        return _episode_summary(res, stops, errors, clear_min, rtts or [0.0], complete=False,
+                                stale=stale, step_ms=step_ms)
+
     for step in range(env.episode_length):
         tick = pacer.wait() if pacer is not None else clock()
+        stop = interrupted() if interrupted is not None else None
+        if stop is not None:
+            e = Interrupted(stop[1], stop[0])
+            e.episode = log["summary"] = partial()
+            raise e
         res, seen = _fresh(env, res, seen, step, pacer, pipe, carry)
         captured = getattr(res, "captured_at", None)
         captured = clock() if captured is None else float(captured)
         t0 = clock()
-        answer, info = client.act(seen, res.desired_goal)
+        fault = _reading_fault(res, deadline, max_observation_age)
+        if fault is not None:
+            fault_since = t0 if fault_since is None else fault_since
+            if max_reading_gap is not None and t0 - fault_since > max_reading_gap:
+                e = ReadingsLost(f"the arms' readings were unusable for {t0 - fault_since:.2f} "
+                                 f"s (limit {max_reading_gap:g} s): {fault}")
+                e.episode = log["summary"] = partial()
+                raise e
+            answer, info = None, {"error": fault}
+        else:
+            fault_since = None
+            answer, info = client.act(seen, res.desired_goal)
         t_answer = clock()
         rtt, age = t_answer - t0, t_answer - captured
         rtts.append(rtt * 1e3)
         action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
                                      max_observation_age)
+        if fault is not None:
+            reason = "stale"
         if why is not None:
             stale += reason == "stale"
             errors.append(why)
@@ -453,8 +516,8 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             grip = res.observation[:, grip_slice[0]:grip_slice[1]]
             decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
             ctrl = _limit_fingers(safety, ctrl, decision)
-        _log_step(log["steps"], tick, age, seen[:, :obs_lib.OBS_SIZE], res.desired_goal, answer,
-                  info, decision, ctrl, why)
+        _log_step(log["steps"], tick, age, seen[:, :obs_lib.OBS_SIZE], res.desired_goal,
+                  action, info, decision, ctrl, why)
         res = env.step_targets(decision.target, ctrl)
         step_ms.append((clock() - tick) * 1e3)
         log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
@@ -565,7 +628,9 @@ def format_summary(out: Mapping) -> str:
 def run_episodes(env, client, safety, episodes: int, seed: int = 0,
                  deadline_s: float | None = None, monitor: OutageMonitor | None = None,
                  perturbation=None, pacer: Pacer | None = None,
-                 max_observation_age: float | None = None, on_log=None) -> dict:
+                 max_observation_age: float | None = None, on_log=None,
+                 max_reading_gap: float | None = None, interrupted=None,
+                 ends_run: tuple = ()) -> dict:
     """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; the summary of
     ``summarize_episodes`` (success rate over the episodes without a missed deadline, ...).
     perturbation: see ``run_episode``; its draws come from ``np.random.default_rng([seed,
@@ -576,6 +641,10 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
     monitor: ``OutageMonitor`` (default: ``MAX_MISSED`` / ``MAX_OUTAGE_S``, silent). When it
     gives up, the run stops there and ``aborted`` holds ``reason``, ``episode`` (1-based),
     ``missed``, ``outage_s`` and ``last_error``; otherwise ``aborted`` is None.
+    max_reading_gap, interrupted: see ``run_episode``; `ReadingsLost`, `Interrupted` and the
+    exception classes in ``ends_run`` (the arms' errors) also end the run there, with
+    ``aborted`` holding ``reason``, ``episode`` and ``kind`` (``readings``, ``signal`` with
+    ``signal``, or the exception's class name).
     """
     rng = np.random.default_rng(seed)
     perturb_rng = np.random.default_rng([seed, PERTURB_STREAM])
@@ -587,12 +656,23 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
             eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s,
                                    monitor=monitor, episode=k, perturbation=perturbation,
                                    perturb_rng=perturb_rng, pacer=pacer,
-                                   max_observation_age=max_observation_age, log=log))
+                                   max_observation_age=max_observation_age, log=log,
+                                   max_reading_gap=max_reading_gap, interrupted=interrupted))
         except ServiceOutage as e:
             if e.episode is not None:
                 eps.append(e.episode)
             aborted = dict(reason=str(e), episode=k + 1, missed=e.missed,
-                           outage_s=round(e.outage_s, 3), last_error=e.last_error)
+                           outage_s=round(e.outage_s, 3), last_error=e.last_error,
+                           kind="outage")
+            break
+        except (Interrupted, ReadingsLost, *ends_run) as e:
+            if getattr(e, "episode", None) is not None:
+                eps.append(e.episode)
+            kind = ("signal" if isinstance(e, Interrupted) else
+                    "readings" if isinstance(e, ReadingsLost) else type(e).__name__)
+            aborted = dict(reason=" ".join(str(e).split())[:300], episode=k + 1, kind=kind)
+            if isinstance(e, Interrupted):
+                aborted["signal"] = e.signal
             break
         finally:
             if on_log is not None and log:

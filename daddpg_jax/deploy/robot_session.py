@@ -6,25 +6,64 @@ exit code. NumPy only, no JAX.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import math
 import os
 import re
+import signal
 import time
 
 from daddpg_jax.deploy import server
-from daddpg_jax.deploy.arms import ArmsError, ArmsUsageError, make_env
+from daddpg_jax.deploy.arms import ArmsError, ArmsStopped, ArmsUsageError
+from daddpg_jax.deploy.arms_factory import make_env
 from daddpg_jax.deploy.calibrate import CalibrationError, parse_base_error
 from daddpg_jax.deploy.client import read_token
+from daddpg_jax.deploy.gate import GateRefusal
 from daddpg_jax.deploy.limits import LimitsError, RobotLimits
-from daddpg_jax.deploy.policy import check_env, env_settings, task_settings
 from daddpg_jax.deploy.robot import Pacer, run_episodes
 from daddpg_jax.deploy.safety import SafetyFilter
+from mjx_envs import observation as obs_lib
 from mjx_envs import perturb, schema, settings
+
+COMPARED = ("scene", "episode_length", "timestep", "n_substeps", "max_delta", "lock_fingers",
+            "locked_opening", "finger_stroke", "action_history")
+"""The task settings a served policy must share with the robot's own task (the scene, its
+timing, the action scale, the fingers, the observation layout); training-only, reward and
+randomization settings are not compared."""
+MAX_EPISODES = 1_000_000
+MAX_SEED = 2**63 - 1
 
 
 class ServiceError(Exception):
     """The service cannot be used (unreachable, another task, bad settings); says why."""
+
+
+def check_numbers(opt) -> str | None:
+    """One-line error text when a numeric option of daddpg-robot-client (its argparse
+    namespace) is not finite or out of range, else None."""
+    if not 1 <= opt.episodes <= MAX_EPISODES:
+        return f"--episodes must be in 1..{MAX_EPISODES}, got {opt.episodes}"
+    if not 0 <= opt.seed <= MAX_SEED:
+        return f"--seed must be in 0..2**63-1, got {opt.seed}"
+    if opt.max_missed < 0:
+        return f"--max-missed must be >= 0 (0: no limit), got {opt.max_missed}"
+    for flag, v in (("--max-outage-s", opt.max_outage_s), ("--speed-scale", opt.speed_scale),
+                    ("--deadline-ms", opt.deadline_ms),
+                    ("--max-observation-age-ms", opt.max_observation_age_ms),
+                    ("--max-speed", opt.max_speed), ("--min-clearance", opt.min_clearance),
+                    ("--workspace-margin", opt.workspace_margin)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            return f"{flag} must be a finite number >= 0, got {v!r}"
+    if opt.max_missed == 0 and opt.max_outage_s == 0:
+        return ("--max-missed 0 and --max-outage-s 0 would let a dead service hold the arms "
+                "forever: keep at least one limit")
+    if opt.json:
+        folder = os.path.dirname(os.path.abspath(opt.json))
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+            return f"--json {opt.json!r}: the folder {folder!r} does not exist or is not writable"
+    return None
 
 
 def check_options(episodes: int, arms: str, fast: bool = False, perturb=(),
@@ -62,11 +101,45 @@ def robot_limits(path: str | None, fast: bool = False, speed_scale: float = 1.0,
     return limits, limits.safety_limits(speed_scale)
 
 
+def robot_task(task: str):
+    """The robot's own settings of ``task`` (a mjx_envs.settings config): the task installed
+    with this package, standard episodes (the training-only options off)."""
+    return settings.task_config(task, **settings.test_overrides(task))
+
+
+def check_model(info, own) -> None:
+    """Refuses (ServiceError, one line) a served policy whose task settings (`COMPARED`), agent
+    count or observation and action layout differ from the robot's own task ``own``."""
+    env = info.get("env")
+    if not isinstance(env, dict):
+        raise ServiceError("GET /info holds no env settings")
+    for key in COMPARED:
+        mine, served = getattr(own, key), env.get(key, getattr(own, key))
+        if isinstance(mine, float) and isinstance(served, (int, float)) and not isinstance(
+                served, bool):
+            same = abs(float(served) - mine) <= 1e-9 + 1e-6 * abs(mine)
+        else:
+            same = served == mine
+        if not same:
+            raise ServiceError(f"the served policy's {key} {served!r:.60} differs from the robot's "
+                               f"own {info.get('task')!r} task ({mine!r})")
+    layout = {"num_agents": 2, "num_arms": 2, "arm_action": obs_lib.ARM_ACTION_SIZE,
+              "action_size": 2 * obs_lib.ARM_ACTION_SIZE, "goal_size": 3,
+              "obs_size": obs_lib.obs_size(own.action_history)}
+    for key, mine in layout.items():
+        if info.get(key, mine) != mine:
+            raise ServiceError(f"the served policy's {key} {info.get(key)!r:.60} is not the "
+                               f"robot's {mine}")
+
+
 def served_policy(url: str, limits, task, sha256: str | None, token: str | None):
-    """(service info, the task's settings (a mjx_envs.settings config), env settings with
-    ``dt``) of the policy served at `url`, checked against the robot's limits; raises
-    ServiceError."""
-    client = server.PolicyClient(url, timeout=5.0, token=token)
+    """(service info, the robot's own task settings (a mjx_envs.settings config)) of the
+    policy served at `url`, checked against the robot's limits and its own task (the served
+    settings are only compared, never used); raises ServiceError."""
+    try:
+        client = server.PolicyClient(url, timeout=5.0, token=token)
+    except ValueError as e:
+        raise ServiceError(str(e)) from None
     try:
         info = client.info()
     except (OSError, RuntimeError, ValueError) as e:
@@ -81,15 +154,12 @@ def served_policy(url: str, limits, task, sha256: str | None, token: str | None)
         raise ServiceError(f"the served policy's SHA-256 {info.get('policy_sha256')!r} is not "
                            f"the pinned {sha256}")
     served = info.get("task")
-    if served not in settings.TASK_SETTINGS:
-        raise ServiceError(f"the service serves a policy of an unknown task {served!r}")
-    # the standard task: the training-only task options (e.g. grasped starts) switched off
-    env = {**(info.get("env") or {}), **settings.test_overrides(served)}
-    try:
-        check_env(env)
-        return info, task_settings(served, env), env_settings(served, env)
-    except ValueError as e:
-        raise ServiceError(f"settings of the served {served!r} policy: {e}") from None
+    if not isinstance(served, str) or served not in settings.TASK_SETTINGS:
+        raise ServiceError(f"the service serves a policy of a task {str(served)[:40]!r} this "
+                           f"robot does not have")
+    own = robot_task(served)
+    check_model(info, own)
+    return info, own
 
 
 def perturbation(task: str, items: list):
@@ -105,18 +175,23 @@ def perturbation(task: str, items: list):
 
 
 def arms_env(kind: str, task_cfg, task: str, limits, hosts: str | None = None,
-             dry_run: bool = False, base_error: str | None = None, exact: bool = True):
-    """The loop's env for --arms `kind` (daddpg_jax.deploy.arms.make_env); `hosts` and
-    `base_error` as the flags give them. Raises ArmsError."""
+             dry_run: bool = False, base_error: str | None = None, exact: bool = True,
+             safety=None):
+    """The loop's env for --arms `kind` (daddpg_jax.deploy.arms_factory.make_env) behind the
+    gate with `safety` (the SafetyLimits in force); `hosts` and `base_error` as the flags give
+    them; the connect and call timeouts and the watchdog from `limits`. Raises ArmsError."""
     error = None
     if base_error:
         try:
             error = parse_base_error(base_error)
         except CalibrationError as e:
             raise ArmsUsageError(str(e)) from None
+    watchdog = max(limits.watchdog, limits.deadline + limits.control_period)
     return make_env(kind, task_cfg, task, limits.control_period,
                     bases=limits.base_transforms(), hosts=hosts.split(",") if hosts else None,
-                    dry_run=dry_run, base_error=error, exact=exact)
+                    dry_run=dry_run, base_error=error, exact=exact, safety=safety,
+                    connect_timeout=limits.connect_timeout, call_timeout=limits.call_timeout,
+                    watchdog=watchdog)
 
 
 class SetupError(Exception):
@@ -152,13 +227,14 @@ def prepare(opt, report=print) -> Setup:
             opt.limits, fast=opt.fast, speed_scale=opt.speed_scale, deadline_ms=opt.deadline_ms,
             max_observation_age_ms=opt.max_observation_age_ms, max_speed=opt.max_speed,
             min_clearance=opt.min_clearance, workspace_margin=opt.workspace_margin)
+        limits.check_calibration()
         token = read_token(opt.token_file) if opt.token_file else None
     except ValueError as e:  # LimitsError included
         raise SetupError(str(e)) from None
     report(limits.describe(opt.speed_scale))
     sha = None if opt.policy_sha256 is None else opt.policy_sha256.lower()
     try:
-        info, task_cfg, _ = served_policy(opt.server, limits, opt.task, sha, token)
+        info, task_cfg = served_policy(opt.server, limits, opt.task, sha, token)
         task = info["task"]
         perturbed = perturbation(task, opt.perturb) if opt.perturb else None
     except (ServiceError, schema.ConfigError) as e:
@@ -170,7 +246,7 @@ def prepare(opt, report=print) -> Setup:
             raise SetupError(f"cannot create --log directory {opt.log!r}: {e.strerror}") from None
     try:
         env = arms_env(opt.arms, task_cfg, task, limits, hosts=opt.ur_hosts, dry_run=opt.dry_run,
-                       base_error=opt.sim_base_error, exact=not opt.float64)
+                       base_error=opt.sim_base_error, exact=not opt.float64, safety=safety)
     except ArmsError as e:  # ArmsUsageError: exit 2; the arms cannot be reached: 4
         raise SetupError(str(e), 2 if isinstance(e, ArmsUsageError) else 4) from None
     return Setup(limits, safety, token, info, task, perturbed, env)
@@ -186,15 +262,54 @@ def episode_logger(log_dir: str):
     return on_log
 
 
+ENDS_RUN = (ArmsError, ArmsStopped, GateRefusal)
+"""The arms' errors that end a run (in the summary's ``aborted``; exit 4, a gate refusal 2)."""
+
+
+class Signals:
+    """SIGINT and SIGTERM ask the run to stop at the next control period (the arms hold, the
+    summary and logs are written; exit 130 / 143); a second signal of the same kind stops at
+    once. Use as a context manager; ``requested()`` is ``run_episodes``' ``interrupted``."""
+
+    NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+
+    def __init__(self):
+        self.signum: int | None = None
+        self._old: dict = {}
+
+    def _handle(self, signum, frame):
+        if self.signum == signum:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def requested(self):
+        if self.signum is None:
+            return None
+        return self.signum, f"interrupted by {self.NAMES.get(self.signum, self.signum)}"
+
+    def __enter__(self):
+        with contextlib.suppress(ValueError):  # not the main thread: signals stay as they are
+            for sig in self.NAMES:
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
 def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor,
         seed: int = 0, fast: bool = False, perturbation=None, log_dir: str | None = None,
-        dry_run: bool = False, report=print) -> dict:
+        dry_run: bool = False, report=print, interrupted=None) -> dict:
     """Runs `episodes` episodes of `env` against the service at `url` through the safety
     filter (robot.run_episodes, outages watched by `monitor`; paced at the control period
     unless `fast`; one JSON log per episode in `log_dir`) and closes the client and the env.
     Returns robot.run_episodes' summary with joint_refusals (arms with joint limits),
     dry_run_commands (`dry_run`; written to log_dir/dry_run_commands.json) and wall_s;
-    `report(line)` gets the refusal line. Raises ArmsStopped / ArmsError."""
+    `report(line)` gets the refusal line and the gate's. The arms' errors (`ENDS_RUN`), lost
+    readings and `interrupted` (`Signals.requested`) end the run with ``aborted`` set; the
+    arms are stopped (servoStop) and released in every case."""
     client = server.PolicyClient(url, timeout=safety.deadline_s, token=token)
     pacer = None if fast else Pacer(limits.control_period, clock=monitor.clock)
     on_log = episode_logger(log_dir) if log_dir else None
@@ -202,11 +317,20 @@ def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor
     try:
         out = run_episodes(env, client, SafetyFilter(safety), episodes, seed=seed,
                            monitor=monitor, perturbation=perturbation, pacer=pacer,
-                           max_observation_age=limits.max_observation_age, on_log=on_log)
+                           max_observation_age=limits.max_observation_age, on_log=on_log,
+                           max_reading_gap=limits.max_reading_gap, interrupted=interrupted,
+                           ends_run=ENDS_RUN)
     finally:
         client.close()
         if hasattr(env, "close"):
             env.close()  # servoStop, then the connections
+    gate = getattr(env, "arms", None)
+    refusals = dict(getattr(gate, "refusals", {}) or {})
+    out["gate_refusals"] = refusals
+    if refusals:
+        report(f"gate: {sum(refusals.values())} command(s) refused and held "
+               f"({', '.join(f'{k} {v}' for k, v in sorted(refusals.items()))}); first: "
+               f"{gate.refused[0]}")
     if hasattr(env, "refused"):
         out["joint_refusals"] = env.refused
         if env.refused:
@@ -234,14 +358,25 @@ def limits_fields(robot_limits, safety, speed_scale: float, monitor, perturbatio
                               if perturbation is not None else None))
 
 
+EXIT_CODES = {"outage": 3, "GateRefusal": 2, "signal": None}
+"""Exit code of an aborted run by its kind (``signal``: 128 + the signal's number); 4 else."""
+
+
 def outcome(out: dict, episodes: int) -> tuple[int, str | None]:
-    """(exit code, closing stderr line or None) of a run's summary: 3 with an error line when
-    it was aborted, else 0 with a note when episodes were excluded."""
+    """(exit code, closing stderr line or None) of a run's summary: when it was aborted, 3 (an
+    outage of the service), 4 (the arms: a driver error, a stop, lost readings), 2 (the gate
+    refused the start) or 130 / 143 (SIGINT / SIGTERM) with an error line; else 0 with a note
+    when episodes were excluded."""
     excluded = out["excluded_episodes"]
     if out["aborted"]:
         aborted = out["aborted"]
-        return 3, (f"error: {aborted['reason']}; aborted in episode {aborted['episode']} of "
-                   f"{episodes}; {excluded} episode(s) excluded, {out['episodes']} counted")
+        kind = aborted.get("kind", "outage")
+        code = EXIT_CODES.get(kind, 4)
+        if kind == "signal":
+            code = 128 + int(aborted["signal"])
+        what = "the run is stopped" if kind not in ("outage", "signal") else "aborted"
+        return code, (f"error: {aborted['reason']}; {what} in episode {aborted['episode']} of "
+                      f"{episodes}; {excluded} episode(s) excluded, {out['episodes']} counted")
     if excluded:
         return 0, (f"note: {excluded} of {out['episodes_run']} episodes excluded from the "
                    f"results (missed deadlines)")

@@ -4,17 +4,24 @@ Applied every control period by the robot client, in this order:
 
 1. **stop**: no answer, a malformed answer (wrong size, NaN/inf) or one later than the deadline
    makes both arms hold (targets kept where they are, fingers unchanged);
-2. **speed cap**: each arm's target displacement this period is scaled down to at most
-   ``max_step`` metres (Euclidean);
-3. **workspace clamp**: targets are clipped to each arm's box;
+2. **workspace clamp**: targets are clipped to each arm's box;
+3. **speed cap**: each arm's displacement from its current target towards the clamped target
+   is scaled down to at most ``max_step`` metres (Euclidean). The cap runs last of the two, so
+   that a target inside its box moves at most ``max_step`` and stays inside (the box is
+   convex);
 4. **arm clearance**: the link points after the move are predicted by moving each arm's
    distal points (wrist 1, flange, tool centre) by its motion this period (new target minus
    measured tool position) and the elbow by half of it (shoulders fixed), and the capsule gap
    between the arms is computed with ``mjx_envs.observation.arm_clearance`` (the trainer's own
    arm-contact check). A move whose predicted gap is below ``min_clearance`` and smaller than
    the current gap is refused: first one arm is stopped (the one that moves less), else both;
-   a stopped arm keeps its previous target if that is safe, else its measured position. Moves
+   a stopped arm keeps its previous target if that is safe, else moves towards its measured
+   position by at most ``max_step`` (inside its box), else keeps its previous target. Moves
    that increase the gap are always allowed, so arms that are too close can separate.
+
+No rule here leaves a target that the gate after it (`daddpg_jax.deploy.gate`) must refuse:
+every output lies in its box and within ``max_step`` of the current target when the current
+target does. A hold keeps the current targets.
 
 The prediction is first order (the arm follows its target within one period; a real arm's
 links move differently, the elbow most), so set ``min_clearance`` with margin. Everything here
@@ -191,23 +198,25 @@ class SafetyFilter:
         # its previous target when that is safe (holding the measured position instead would
         # let a real or simulated arm sag under gravity step after step), else its measured one.
         order = [int(i) for i in np.argsort(np.linalg.norm(motion, axis=-1))]
+        towards_tool, _ = self.cap_speed(cur, self.clamp_workspace(tool)[0])
         for stopped in ([order[0]], [order[1]], order):
-            for hold in (cur, tool):
+            for hold in (cur, towards_tool):
                 t = target.copy()
                 t[stopped] = hold[stopped]
                 gap = self.clearance(self.predict_link_points(link_points, t - tool))
                 if gap >= lim or gap >= now:
                     return t, True, now, gap
-        return tool.copy(), True, now, now
+        return cur.copy(), True, now, now
 
     # -- the whole layer ----------------------------------------------------------------------
 
     def hold(self, current_target, measured_tool=None, reason: str = "stop") -> SafetyDecision:
         """Stop: keep the current targets (the arms settle on the last commanded pose, at most
-        one step away), or hold ``measured_tool`` positions when given (e.g. after a protective
-        stop on a real robot); clamped to the box."""
-        t = current_target if measured_tool is None else measured_tool
-        t, _ = self.clamp_workspace(t)
+        one step away), or, with ``measured_tool``, move towards those positions by at most
+        ``max_step`` (inside the box)."""
+        t = np.asarray(current_target, np.float32).reshape(NUM_ARMS, 3).copy()
+        if measured_tool is not None:
+            t, _ = self.cap_speed(t, self.clamp_workspace(measured_tool)[0])
         self._count([reason])
         return SafetyDecision(target=t, stopped=True, reasons=[reason])
 
@@ -219,12 +228,12 @@ class SafetyFilter:
         if not np.all(np.isfinite(prop)):
             return self.hold(cur, reason="malformed")
         reasons = []
-        t, capped = self.cap_speed(cur, prop)
-        if capped:
-            reasons.append("speed")
-        t, clamped = self.clamp_workspace(t)
+        t, clamped = self.clamp_workspace(prop)
         if clamped:
             reasons.append("workspace")
+        t, capped = self.cap_speed(cur, t)
+        if capped:
+            reasons.append("speed")
         t, refused, before, after = self.limit_clearance(cur, t, link_points, tool)
         if refused:
             reasons.append("clearance")

@@ -14,6 +14,12 @@ received their servoL of the period (the grippers' commands of the period come f
 unpaced run steps exactly like the simulator. `SimGripper` is the simulated gripper and
 `SimObjectSource` the cell's object. A protective or emergency stop can be raised on an arm
 (``cell.protective[i] = True``) to rehearse the stop path.
+
+The simulated controllers keep a clock that advances with wall time, as a real controller's
+does (RTDE's ``getTimestamp``), also in a dry run, and a watchdog: once armed with
+``setWatchdog(f)``, a controller not kicked within ``1 / f`` s stops its script (the next
+servoL returns False and moves nothing), as ur_rtde's does. ``moveL`` runs a straight line at
+its speed, one control period at a time.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from daddpg_jax.deploy import robot, ur3
 from daddpg_jax.deploy.arms import (
     ArmsEnv,
     ArmsReading,
+    CallGuard,
     Gripper,
     URArms,
     base_transform,
@@ -113,8 +120,19 @@ class SimCell:
         if len(self.pending) == 2:
             self.step()
 
-    def move(self, arm: int, pose):
+    def move(self, arm: int, pose, speed: float):
+        """A straight line of arm ``arm``'s target to ``pose`` (its true base frame) at
+        ``speed`` m/s, one control period at a time, then `settle`."""
+        start = self.targets[arm].copy()
         self.set_target(arm, pose)
+        end = self.targets[arm].copy()
+        length = float(np.linalg.norm(end - start))
+        step = float(speed) * float(self.env.dt)
+        n = int(np.ceil(length / step)) if step > 0 else 0
+        for k in range(1, min(n, HOME_MAX_STEPS)):
+            self.targets[arm] = start + (end - start) * (k / n)
+            self.step()
+        self.targets[arm] = end
         self.settle()
 
     def grip(self, arm: int, opening: float):
@@ -180,11 +198,13 @@ class SimArms:
     def __init__(self, cell: SimCell, clock=time.perf_counter):
         self.cell, self.clock = cell, clock
         self.stopped = False
+        self.wall = time.perf_counter  # the controllers' clock: wall time, as on a robot
 
     def read(self) -> ArmsReading:
         cell = self.cell
         raise_if_stopped(cell.emergency, cell.protective)
         t = self.clock()
+        stamp = self.wall()
         sens, arms = cell.arm_sensors(), range(2)
         return ArmsReading(
             tool_pose=np.array([cell.tcp_pose(i, sens) for i in arms], float),
@@ -193,23 +213,22 @@ class SimArms:
             fingers=np.array([cell.fingers(i, sens) for i in arms], float),
             captured_at=t,
             finger_speed=np.array([cell.finger_speeds(i, sens) for i in arms], float),
-            link_points=np.stack([cell.link_points(i, sens) for i in arms]))
+            link_points=np.stack([cell.link_points(i, sens) for i in arms]),
+            controller_time=np.array([stamp, stamp]))
 
     def servo(self, poses) -> None:
         poses = np.asarray(poses, float).reshape(2, 6)
         for i in range(2):
-            self.cell.set_target(i, poses[i])
-        self.cell.step()
+            self.cell.servo(i, poses[i])
 
     def grip(self, openings) -> None:
         for i, o in enumerate(np.asarray(openings, float).reshape(2)):
             self.cell.grip(i, o)
 
-    def home(self, poses) -> None:
+    def home(self, poses, speed: float) -> None:
         poses = np.asarray(poses, float).reshape(2, 6)
         for i in range(2):
-            self.cell.set_target(i, poses[i])
-        self.cell.settle()
+            self.cell.move(i, poses[i], speed)
 
     def stop(self) -> None:
         """The simulated arms rest between control periods: nothing to send."""
@@ -222,12 +241,32 @@ class SimArms:
 class SimRTDEControl:
     """``rtde_control.RTDEControlInterface``'s subset, on arm ``arm`` of a `SimCell`."""
 
-    def __init__(self, cell: SimCell, arm: int):
-        self.cell, self.arm = cell, arm
+    def __init__(self, cell: SimCell, arm: int, wall=time.perf_counter):
+        self.cell, self.arm, self.wall = cell, arm, wall
         self.servoing = False
         self.connected = True
+        self.running = True  # the control script; a tripped watchdog stops it
+        self.watchdog_s: float | None = None
+        self.kicked = 0.0
+
+    def _watchdog_ok(self) -> bool:
+        if self.watchdog_s is not None and self.wall() - self.kicked > self.watchdog_s:
+            self.running = self.servoing = False
+        return self.running
+
+    def setWatchdog(self, min_frequency=10.0):  # noqa: N802
+        self.watchdog_s = 1.0 / float(min_frequency)
+        self.kicked = self.wall()
+        return True
+
+    def kickWatchdog(self):  # noqa: N802
+        if self._watchdog_ok():
+            self.kicked = self.wall()
+        return self.running
 
     def servoL(self, pose, speed, acceleration, time, lookahead_time, gain):  # noqa: N802
+        if not self._watchdog_ok():
+            return False
         self.servoing = True
         self.cell.servo(self.arm, pose)
         return True
@@ -237,7 +276,9 @@ class SimRTDEControl:
         return True
 
     def moveL(self, pose, speed=0.25, acceleration=1.2, asynchronous=False):  # noqa: N802
-        self.cell.move(self.arm, pose)
+        if not self._watchdog_ok():
+            return False
+        self.cell.move(self.arm, pose, speed)
         return True
 
     def stopScript(self):  # noqa: N802
@@ -250,8 +291,13 @@ class SimRTDEControl:
 class SimRTDEReceive:
     """``rtde_receive.RTDEReceiveInterface``'s subset, on arm ``arm`` of a `SimCell`."""
 
-    def __init__(self, cell: SimCell, arm: int):
-        self.cell, self.arm = cell, arm
+    def __init__(self, cell: SimCell, arm: int, wall=time.perf_counter):
+        self.cell, self.arm, self.wall = cell, arm, wall
+        self.started = wall()
+
+    def getTimestamp(self):  # noqa: N802
+        """The controller's clock, s since it started: wall time, as on a robot."""
+        return self.wall() - self.started
 
     def getActualTCPPose(self):  # noqa: N802
         return self.cell.tcp_pose(self.arm)
@@ -302,32 +348,38 @@ class SimObjectSource:
         return obs_lib.read_object_sensors(np, env.sensors, env._sens)
 
 
-def sim_ur_arms(env, period: float, offset=None, yaw=None, dry_run: bool = False):
+def sim_ur_arms(env, period: float, offset=None, yaw=None, dry_run: bool = False,
+                call_timeout: float | None = None, watchdog: float | None = None):
     """(`URArms` on a simulated cell, the cell, its object source): ``env`` a fresh
     `NumpyDualArmEnv` of the task (the cell's physics), the calibration error ``offset`` [2, 3]
-    m and ``yaw`` [2] rad of the true bases."""
+    m and ``yaw`` [2] rad of the true bases; call_timeout, watchdog: see `URArms`."""
     cell = SimCell(env, offset, yaw)
     controls = None if dry_run else [SimRTDEControl(cell, i) for i in range(2)]
     receives = [SimRTDEReceive(cell, i) for i in range(2)]
     grippers = [SimGripper(cell, i) for i in range(2)]
-    return URArms(controls, receives, grippers, period), cell, SimObjectSource(cell)
+    guard = None if call_timeout is None else CallGuard(call_timeout)
+    return (URArms(controls, receives, grippers, period, guard=guard, watchdog=watchdog), cell,
+            SimObjectSource(cell))
 
 
 def sim_ur_env(spec, cell_env, period: float, bases=None, offset=None, yaw=None,
-               dry_run: bool = False):
+               dry_run: bool = False, safety=None, call_timeout: float | None = None,
+               watchdog: float | None = None):
     """`daddpg_jax.deploy.arms.ArmsEnv` of `URArms` on a simulated cell (``cell_env``, a
     `NumpyDualArmEnv` of the task) with its object source and ground truth; ``bases``: the robot
     side's world <- base transforms (default nominal), ``offset``/``yaw``: the cell's
-    calibration error."""
-    arms, cell, objects = sim_ur_arms(cell_env, period, offset, yaw, dry_run)
-    return ArmsEnv(spec, arms, bases=bases, objects=objects, truth=cell.truth)
+    calibration error; ``safety``: the gate's `SafetyLimits` (None: the simulator's own)."""
+    arms, cell, objects = sim_ur_arms(cell_env, period, offset, yaw, dry_run, call_timeout,
+                                      watchdog)
+    return ArmsEnv(spec, arms, bases=bases, objects=objects, truth=cell.truth, safety=safety)
 
 
-def sim_env(spec, cell_env, bases=None, offset=None, yaw=None):
+def sim_env(spec, cell_env, bases=None, offset=None, yaw=None, safety=None):
     """`daddpg_jax.deploy.arms.ArmsEnv` of `SimArms` on a simulated cell (``cell_env``, a
     `NumpyDualArmEnv` of the task) with its object source and ground truth (``--arms sim``);
     ``bases``: the robot side's world <- base transforms (default nominal), ``offset``/``yaw``:
-    the cell's calibration error (default none)."""
+    the cell's calibration error (default none); ``safety``: the gate's `SafetyLimits` (None:
+    the simulator's own)."""
     cell = SimCell(cell_env, offset, yaw)
     return ArmsEnv(spec, SimArms(cell), bases=bases, objects=SimObjectSource(cell),
-                   truth=cell.truth)
+                   truth=cell.truth, safety=safety)
