@@ -1,7 +1,9 @@
 """Policy files that must not load, and answers that must not pass: non-finite or malformed
-weights and normalizers, ``meta`` outside its schema, truncated and oversized files, zip bombs
-(each one PolicyFormatError with one line, and one line from the CLIs); ``validate_action``
-accepts only 8 finite JSON numbers; the service never sends a non-finite action.
+weights and normalizers, ``meta`` outside its schema, truncated and oversized files, zip bombs,
+files declaring agents, sizes or a total this code does not run (refused from ``meta`` and the
+zip directory before any array is read); each one PolicyFormatError with one line, and one line
+from the CLIs. ``validate_action`` accepts only 8 finite JSON numbers; the service never sends a
+non-finite action.
 
 Built on the checked-in export tests/data/legacy_reach/policy.npz (no JAX, no MJX): the whole
 module takes ~3 s."""
@@ -220,3 +222,87 @@ def test_service_never_sends_a_nonfinite_action():
         assert a is None and "HTTP 500" in info["error"] and "non-finite" in info["error"]
         assert c.health()["nonfinite"] == 1
         c.close()
+
+
+# -- what a file declares, checked before any array is inflated --------------------------------
+
+def _opened_members(monkeypatch) -> list[str]:
+    """The names of the zip members that policy loading opens from now on."""
+    opened = []
+    real = zipfile.ZipFile.open
+
+    def spy(self, name, *args, **kwargs):
+        opened.append(getattr(name, "filename", name))
+        return real(self, name, *args, **kwargs)
+
+    monkeypatch.setattr(zipfile.ZipFile, "open", spy)
+    return opened
+
+
+@pytest.mark.parametrize("change,words", [
+    ({"num_agents": 8}, "8 agents for algo daddpg (expected 2)"),
+    ({"layer_sizes": [[56, 8192], [8192, 8192], [8192, 4]]}, "more than the limit"),
+    ({"layer_sizes": [[56, 16], [17, 4]]}, "actor layer 1 takes 17 inputs"),
+    ({"layer_sizes": [[56, 16], [16, 8]]}, "actor output size 8, expected 4"),
+    ({"obs_size": 8000, "obs_layout": {}}, "obs_size 8000, but the observation has 25"),
+    ({"goal_size": 300}, "goal_size 300, expected 3"),
+    ({"num_arms": 8}, "8 arms"), ({"action_size": 32}, "action size 32"),
+    ({"env": {"action_history": -1}}, "action_history"),
+], ids=["agents", "total", "chain", "output", "obs", "goal", "arms", "action", "history"])
+def test_declared_sizes_are_checked_before_any_array_is_read(tmp_path, monkeypatch, change,
+                                                             words):
+    """A file declaring 8 agents (or layers of 8192, or sizes the robot's observation does not
+    have) had every array inflated before that was checked (272 KB -> 564 MB; the format
+    allowed ~128 GiB). Now ``meta`` alone is checked against the variant's row and the
+    observation code, and the declared total against MAX_INFLATED_BYTES, and only ``meta.npy``
+    is opened; the same file with its own ``meta`` opens every array (positive control);
+    ~10 ms each."""
+    arrays, meta = _arrays()
+    meta = {**meta, **change}
+    if "env" in change:
+        meta["env"] = {**_arrays()[1]["env"], **change["env"]}
+    good = _write(tmp_path / "good.npz", arrays)
+    bad = _write(tmp_path / "bad.npz", arrays, meta)
+    opened = _opened_members(monkeypatch)
+    NumpyPolicy.load(good)
+    assert {"meta.npy", "actor/W0.npy", "obs_norm/std.npy"} <= set(opened), opened
+    opened.clear()
+    msg = _one_line_error(bad)
+    assert words in msg, msg
+    assert opened == ["meta.npy"], opened
+
+
+def test_inflated_total_is_capped_from_the_zip_directory(tmp_path, monkeypatch):
+    """The members' uncompressed sizes in the zip directory count against MAX_INFLATED_BYTES
+    before any is opened: with the cap lowered to 10 kB, the export (9.6 kB of float32 arrays)
+    loads and the same arrays as float64 (19 kB) are refused, only ``meta.npy`` opened; ~10 ms.
+    A policy of the default network (3 hidden layers of 256) is 1.2 MB, far under the real cap."""
+    from daddpg_jax.deploy import policy as policy_mod
+
+    arrays, _ = _arrays()
+    assert policy_mod.MAX_INFLATED_BYTES == 64 * 1024 * 1024
+    monkeypatch.setattr(policy_mod, "MAX_INFLATED_BYTES", 10_000)
+    NumpyPolicy.load(GOOD)   # positive control
+    wide = {k: (v.astype(np.float64) if k != "meta" else v) for k, v in arrays.items()}
+    path = _write(tmp_path / "f64.npz", wide)
+    opened = _opened_members(monkeypatch)
+    msg = _one_line_error(path)
+    assert "zip directory" in msg and "10000" in msg, msg
+    assert opened == ["meta.npy"], opened
+
+
+def test_member_data_must_match_its_header(tmp_path):
+    """A member is read as its ``.npy`` header declares: dtype and shape checked from the
+    header before the data is inflated, then exactly the bytes they give; data longer or
+    shorter than that is refused; ~10 ms."""
+    arrays, _ = _arrays()
+    npy = io.BytesIO()
+    np.save(npy, np.asarray(arrays["obs_norm/mean"], np.float32))
+    for name, data in (("long", npy.getvalue() + b"\0" * 8), ("short", npy.getvalue()[:-8])):
+        path = tmp_path / f"{name}.npz"
+        with zipfile.ZipFile(GOOD) as src, zipfile.ZipFile(path, "w") as zf:
+            for info in src.infolist():
+                zf.writestr(info.filename, data if info.filename == "obs_norm/mean.npy"
+                            else src.read(info.filename))
+        msg = _one_line_error(path)
+        assert "obs_norm/mean" in msg and "its header declares 200" in msg, msg

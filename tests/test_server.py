@@ -492,3 +492,33 @@ def test_limits_are_validated_and_configurable(policy, tmp_path, capsys):
     assert "max_connections must be at least 1" in capsys.readouterr().err
     assert serve.main([str(tmp_path / "p.npz"), "--request-timeout", "-1"]) == 2
     assert "request_timeout" in capsys.readouterr().err
+
+
+class _SlowGraphPolicy:
+    """A policy whose compute is stopped at its cap (as ``OnnxPolicy.act`` raises it)."""
+
+    def __init__(self, inner):
+        self._inner = inner
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def act(self, o, g):
+        from daddpg_jax.deploy.onnx_policy import ComputeTimeout
+
+        raise ComputeTimeout("the ONNX graph ran past its compute cap of 0.5 s and was stopped")
+
+
+def test_policy_stopped_at_its_compute_cap_gets_500(policy):
+    """A policy call stopped at its compute-time cap (ComputeTimeout, a RuntimeError: not an
+    OSError that would drop the connection unanswered) is answered 500 with the reason and
+    ``Connection: close``, no action; the service keeps serving; ~0.1 s."""
+    with PolicyServer(_SlowGraphPolicy(policy), port=0) as srv:
+        o, g = _inputs(3)
+        body = json.dumps({"observation": o.tolist(), "desired_goal": g.tolist()}).encode()
+        ans = _raw(srv, b"POST /act HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                        b"Content-Length: %d\r\n\r\n" % len(body) + body)
+        assert ans.startswith(b"HTTP/1.1 500 ") and b"Connection: close" in ans, ans[:300]
+        assert b"compute cap" in ans and b"no action is sent" in ans and b'"action"' not in ans
+        status, out = _request(srv, "GET", "/health")
+        assert status == 200 and out["errors"] == 1

@@ -1,11 +1,12 @@
 """The policy service's HTTP framing (h11) and who the client talks to: ambiguous framing gets
 400 and the connection closed (nothing smuggled runs as a second request), bodies must be strict
 UTF-8 JSON, the nesting check is fast; /info reports the policy file's SHA-256, the client pins
-it (--policy-sha256), and the service can require a shared token (--token-file, 401 without it).
-An honest request on the same server still gets 200 (positive control).
+it (--policy-sha256), and the service can require a shared token (--token-file, 401 without it);
+a request line and headers over 64 KiB get 431. An honest request on the same server still gets
+200 (positive control).
 
-In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~3 s, and ~5 s
-more for the e2e test of the flood benchmark."""
+In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~4.5 s, and
+~5 s more for the e2e test of the flood benchmark."""
 
 from __future__ import annotations
 
@@ -255,3 +256,37 @@ def test_benchmark_tools_in_process(server, policy, capsys):
     with pytest.raises(SystemExit):
         bench_flood.main([GOOD, "--flooders", "1000"])
     capsys.readouterr()
+
+
+def _padded(head_bytes: int, body: bytes) -> bytes:
+    """A /act request whose request line and headers take exactly ``head_bytes`` bytes (an
+    ``X-Pad`` header fills them), then ``body``."""
+    head = _post(b"", b"Content-Length: %d" % len(body), b"X-Pad: ")[:-4]  # "...X-Pad: "
+    pad = head_bytes - len(head) - 4  # the header's CRLF and the blank line
+    assert pad > 0
+    return head + b"a" * pad + b"\r\n\r\n" + body
+
+
+@pytest.mark.parametrize("head_bytes", [60 * 1024, 64 * 1024, 64 * 1024 + 1, 65 * 1024 + 1,
+                                        130_000])
+def test_request_head_over_64_kib_gets_431(server, policy, head_bytes):
+    """A whole 130 KB head got 200: h11's limit holds only while a head is incomplete, so a head
+    that arrived complete in few reads passed it. A request line and headers over MAX_HEAD
+    (64 KiB) now get 431 and the connection closed; up to 64 KiB they still get 200, twice on
+    one connection (pipelined: the second head is counted from its own first byte). ~0.3 s
+    each (a kept connection is read for 0.3 s more)."""
+    from daddpg_jax.deploy.server import MAX_HEAD
+
+    body = BODY.encode()
+    req = _padded(head_bytes, body)
+    assert len(req) == head_bytes + len(body)
+    if head_bytes <= MAX_HEAD:
+        got = _exchange(server, req + req, wait=0.3)
+        assert got.count(b"HTTP/1.1 200 OK") == 2 and b"Connection: close" not in got, got[:200]
+        return
+    got = _exchange(server, req, wait=2.0)
+    assert got.startswith(b"HTTP/1.1 431 ") and b"Connection: close" in got, got[:300]
+    assert b'"status":431' in got and b"200 OK" not in got
+    # the server still serves
+    ok = _exchange(server, _post(body, b"Content-Length: %d" % len(body)), wait=0.3)
+    assert ok.startswith(b"HTTP/1.1 200 OK")

@@ -200,13 +200,6 @@ class GatedArms:
         """GateRefusal unless every arm's measured tool position and start pose lie in its
         box. Reads the arms (nothing is sent)."""
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
-        measured = self.world(self.read().tool_pose[:, :3])
-        arm = self._outside(measured, MEASURED_TOLERANCE)
-        if arm is not None:
-            raise GateRefusal(
-                f"the {ARM_NAMES[arm]} arm's measured tool position {_fmt(measured[arm])} lies "
-                f"outside its box {_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved "
-                f"(move it into the box by hand, or check the limits and the calibration)")
         start = self.world(poses[:, :3])
         arm = self._outside(start, BOX_TOLERANCE)
         if arm is not None:
@@ -214,6 +207,13 @@ class GatedArms:
                 f"the task's start pose {_fmt(start[arm])} of the {ARM_NAMES[arm]} arm lies "
                 f"outside its box {_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved "
                 f"(the limits file's box must hold the start pose)")
+        measured = self.world(self.read().tool_pose[:, :3])
+        arm = self._outside(measured, MEASURED_TOLERANCE)
+        if arm is not None:
+            raise GateRefusal(
+                f"the {ARM_NAMES[arm]} arm's measured tool position {_fmt(measured[arm])} lies "
+                f"outside its box {_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved "
+                f"(move it into the box by hand, or check the limits and the calibration)")
         why = self._orientation(poses)
         if why is not None:
             raise GateRefusal(f"the start pose: {why}; nothing moved")

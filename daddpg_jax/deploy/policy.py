@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from daddpg_jax.algo import variants
+from mjx_envs import observation as obs_lib
 from mjx_envs import schema
 from mjx_envs import settings as task_settings_lib
 
@@ -53,6 +54,13 @@ MAX_AGENTS = 8
 NPY_HEADER_BYTES = 4096
 """Room for a member's ``.npy`` header beyond its data: a member is read only up to its
 declared shape's bytes plus this."""
+MAX_INFLATED_BYTES = 64 * 1024 * 1024
+"""Most bytes the arrays of a policy file may take once inflated, checked twice before any array
+is read: the values ``meta`` declares (at 4 bytes, as the policy holds them) and the members'
+uncompressed sizes in the zip directory. The checked-in test export's arrays take 9.6 kB and
+the default network (3 hidden layers of 256, 2 agents, float32) 1.2 MB."""
+GOAL_SIZE = 3
+"""Length of each arm's desired goal (a position, m)."""
 
 
 class PolicyFormatError(ValueError):
@@ -157,12 +165,7 @@ def check_env(env) -> None:
 
 def _member(zf: zipfile.ZipFile, infos: Mapping, name: str, limit: int) -> np.ndarray:
     """Array ``name`` of the npz, read only when its stored size is at most ``limit`` bytes."""
-    info = infos.get(name + ".npy")
-    if info is None:
-        _fail(f"misses array {name!r}")
-    if info.file_size > limit:
-        _fail(f"array {name!r} takes {info.file_size} bytes, more than its declared shape "
-              f"allows ({limit})")
+    info = _info(infos, name, limit)
     with zf.open(info) as f:
         raw = f.read(limit + 1)
     if len(raw) > limit:
@@ -170,13 +173,96 @@ def _member(zf: zipfile.ZipFile, infos: Mapping, name: str, limit: int) -> np.nd
     return np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
 
 
-def _float_array(zf, infos, name: str, shape: tuple[int, ...]) -> np.ndarray:
-    limit = int(np.prod(shape, dtype=np.int64)) * 8 + NPY_HEADER_BYTES
-    arr = _member(zf, infos, name, limit)
-    if arr.dtype.kind != "f":
-        _fail(f"array {name!r} has dtype {arr.dtype}, expected floats")
-    if arr.shape != shape:
-        _fail(f"array {name!r} has shape {list(arr.shape)}, expected {list(shape)}")
+def _info(infos: Mapping, name: str, limit: int) -> zipfile.ZipInfo:
+    """The zip directory's entry of array ``name``, refused when its uncompressed size (which
+    bounds what reading it inflates) is over ``limit`` bytes."""
+    info = infos.get(name + ".npy")
+    if info is None:
+        _fail(f"misses array {name!r}")
+    if info.file_size > limit:
+        _fail(f"array {name!r} takes {info.file_size} bytes, more than its declared shape "
+              f"allows ({limit})")
+    return info
+
+
+def _limit(shape: tuple[int, ...]) -> int:
+    """Most bytes the ``.npy`` member of a float array of ``shape`` may take."""
+    return int(np.prod(shape, dtype=np.int64)) * 8 + NPY_HEADER_BYTES
+
+
+def array_plan(meta: Mapping) -> list[tuple[str, tuple[int, ...]]]:
+    """The arrays a policy file with this (``check_meta``-checked) ``meta`` holds, with their
+    shapes, after checking what ``meta`` declares against what the code allows, from ``meta``
+    alone: the algo is a known variant whose agent count, action slots and actor input size
+    ``meta`` repeats (``daddpg_jax.algo.variants``), 2 arms of 4 action entries, an observation
+    of the length the observation code builds (``mjx_envs.observation.obs_size`` of the env's
+    ``action_history``), a 3-d goal, a chain of actor layers from the actor input to the action
+    slot, and all the values at most ``MAX_INFLATED_BYTES`` (as float32). PolicyFormatError
+    (one line) otherwise."""
+    algo = meta["algo"]
+    if algo not in variants.VARIANTS:
+        _fail(f"unknown algo {algo!r} in policy file; this code reads "
+              f"{', '.join(variants.ALGOS)}")
+    v = variants.get(algo)
+    agents = meta.get("num_agents", v.num_agents)
+    if agents != v.num_agents:
+        _fail(f"{agents} agents for algo {algo} (expected {v.num_agents})")
+    arms, arm_action = meta.get("num_arms", variants.NUM_ARMS), meta["arm_action"]
+    if (arms, arm_action) != (variants.NUM_ARMS, variants.ARM_ACTION):
+        _fail(f"{arms} arms with {arm_action} action entries each; this code drives "
+              f"{variants.NUM_ARMS} arms with {variants.ARM_ACTION}")
+    if meta["action_size"] != arms * arm_action:
+        _fail(f"action size {meta['action_size']}, expected {arms * arm_action}")
+    history = (meta.get("env") or {}).get("action_history", 0)
+    if isinstance(history, bool) or not isinstance(history, int) or not 0 <= history <= 64:
+        _fail(f"env action_history must be an integer in [0, 64], got {history!r}")
+    obs, goal = meta["obs_size"], meta["goal_size"]
+    if obs != obs_lib.obs_size(history):
+        _fail(f"obs_size {obs}, but the observation has {obs_lib.obs_size(history)} values "
+              f"per arm (action_history {history})")
+    if goal != GOAL_SIZE:
+        _fail(f"goal_size {goal}, expected {GOAL_SIZE}")
+    a_in = v.input_dims(obs, goal)[0]
+    if meta["actor_input_dim"] != a_in:
+        _fail(f"actor input size {meta['actor_input_dim']}, expected {a_in} for algo {algo}")
+    plan, prev = [], a_in
+    for i, (n_in, n_out) in enumerate(meta["layer_sizes"]):
+        if n_in != prev:
+            _fail(f"actor layer {i} takes {n_in} inputs, the layer before gives {prev}")
+        plan += [(f"actor/W{i}", (agents, n_in, n_out)), (f"actor/b{i}", (agents, n_out))]
+        prev = n_out
+    if prev != v.agent_action_dim:
+        _fail(f"actor output size {prev}, expected {v.agent_action_dim}")
+    plan += [(f"{k}_norm/{s}", (arms, meta[f"{k}_size"]))
+             for k in ("obs", "goal") for s in ("mean", "std")]
+    values = sum(int(np.prod(shape, dtype=np.int64)) for _, shape in plan)
+    if values * 4 > MAX_INFLATED_BYTES:
+        _fail(f"meta declares arrays of {values} values ({values * 4} bytes as float32), more "
+              f"than the limit of {MAX_INFLATED_BYTES} bytes")
+    return plan
+
+
+def _float_array(zf, info: zipfile.ZipInfo, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """Array ``name``: its ``.npy`` header is read and checked (a float dtype, ``shape``) before
+    its data is inflated, then exactly the data that header declares."""
+    with zf.open(info) as f:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            got, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            got, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+        else:
+            _fail(f"array {name!r} has .npy format version {version}, expected 1.0 or 2.0")
+        if dtype.kind != "f" or dtype.itemsize > 8:   # float16, 32 or 64, either byte order
+            _fail(f"array {name!r} has dtype {dtype}, expected floats")
+        if tuple(got) != shape:
+            _fail(f"array {name!r} has shape {list(got)}, expected {list(shape)}")
+        n = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        raw = f.read(n + 1)
+    if len(raw) != n:
+        _fail(f"array {name!r} holds {len(raw)}{'+' if len(raw) > n else ''} bytes of data, "
+              f"its header declares {n}")
+    arr = np.frombuffer(bytearray(raw), dtype).reshape(shape, order="F" if fortran else "C")
     if not np.all(np.isfinite(arr)):
         _fail(f"array {name!r} contains NaN or infinite values")
     return arr
@@ -294,10 +380,12 @@ class NumpyPolicy:
     def load(cls, path) -> NumpyPolicy:
         """The policy in the ``.npz`` at ``path``. Raises FileNotFoundError when it does not
         exist and PolicyFormatError (one line) for anything else that is wrong with it:
-        not a zip, truncated, ``meta`` outside its schema (``check_meta``), a missing array, an
-        array larger than its declared shape (read no further: memory stays bounded by the
-        declared shapes), wrong shapes or dtypes, NaN/inf values, std <= 0. ``sha256`` holds the
-        SHA-256 of the file's bytes."""
+        not a zip, truncated, ``meta`` outside its schema (``check_meta``) or declaring sizes,
+        agents or layers that this code does not run (``array_plan``, checked before any array
+        is read), arrays over ``MAX_INFLATED_BYTES`` in all (from ``meta`` and from the zip
+        directory, before any is inflated), a missing array, an array larger than its declared
+        shape, wrong shapes or dtypes (from each member's ``.npy`` header, before its data is
+        inflated), NaN/inf values, std <= 0. ``sha256`` holds the SHA-256 of the file's bytes."""
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"policy file {path!r} not found")
@@ -329,16 +417,19 @@ class NumpyPolicy:
                 _fail("'meta' must be a JSON string")
             meta = json.loads(str(raw), parse_constant=_no_constant)
             check_meta(meta)
-            arms = int(meta.get("num_arms", variants.NUM_ARMS))
-            agents = int(meta.get("num_agents", variants.get(meta["algo"]).num_agents
-                                  if meta["algo"] in variants.VARIANTS else 1))
-            ws, bs = [], []
-            for i, (n_in, n_out) in enumerate(meta["layer_sizes"]):
-                ws.append(_float_array(zf, infos, f"actor/W{i}", (agents, n_in, n_out)))
-                bs.append(_float_array(zf, infos, f"actor/b{i}", (agents, n_out)))
-            norm = [_float_array(zf, infos, f"{k}_norm/{s}", (arms, meta[f"{k}_size"]))
-                    for k in ("obs", "goal") for s in ("mean", "std")]
-        return cls(ws, bs, *norm, meta=meta)
+            plan = array_plan(meta)   # from meta alone: nothing else is read before it passes
+            members = [_info(infos, name, _limit(shape)) for name, shape in plan]
+            total = sum(i.file_size for i in members)
+            if total > MAX_INFLATED_BYTES:
+                _fail(f"arrays of {total} bytes once inflated (zip directory), more than the "
+                      f"limit of {MAX_INFLATED_BYTES}")
+            arrays = {name: _float_array(zf, info, name, shape)
+                      for (name, shape), info in zip(plan, members, strict=True)}
+        n = len(meta["layer_sizes"])
+        return cls([arrays[f"actor/W{i}"] for i in range(n)],
+                   [arrays[f"actor/b{i}"] for i in range(n)],
+                   *(arrays[f"{k}_norm/{s}"] for k in ("obs", "goal") for s in ("mean", "std")),
+                   meta=meta)
 
     def _validate(self):
         v = self.variant

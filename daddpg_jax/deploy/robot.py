@@ -387,6 +387,33 @@ def _reading_fault(res, deadline: float, max_age: float | None) -> str | None:
     return None
 
 
+class _ReadingWatch:
+    """How long the arms' readings have been unusable (`_reading_fault`); `ReadingsLost` once
+    longer than ``max_gap`` s (None: never)."""
+
+    def __init__(self, deadline: float, max_age: float | None, max_gap: float | None):
+        self.deadline, self.max_age, self.max_gap = deadline, max_age, max_gap
+        self.since: float | None = None
+
+    def check(self, res, now: float) -> str | None:
+        fault = _reading_fault(res, self.deadline, self.max_age)
+        if fault is None:
+            self.since = None
+            return None
+        self.since = now if self.since is None else self.since
+        if self.max_gap is not None and now - self.since > self.max_gap:
+            raise ReadingsLost(f"the arms' readings were unusable for {now - self.since:.2f} s "
+                               f"(limit {self.max_gap:g} s): {fault}")
+        return fault
+
+
+def _interrupt(interrupted) -> None:
+    """Raises `Interrupted` when ``interrupted()`` (if any) asks the run to stop."""
+    stop = interrupted() if interrupted is not None else None
+    if stop is not None:
+        raise Interrupted(stop[1], stop[0])
+
+
 def _report(monitor: OutageMonitor | None, why: str | None, sent_at: float, where: str):
     """Tells the monitor (if any) how the period went: answered, or a missed deadline."""
     if monitor is None:
@@ -466,70 +493,52 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
     stops, stale, rtts, errors, step_ms = 0, 0, [], [], []
     clear_min = res.arm_clearance
-    fault_since = None
+    watch = _ReadingWatch(deadline, max_observation_age, max_reading_gap)
     if pacer is not None:
         pacer.restart()
-
-    def partial():
-        return _episode_summary(res, stops, errors, clear_min, rtts or [0.0], complete=False,
-                                stale=stale, step_ms=step_ms)
-
-    for step in range(env.episode_length):
-        tick = pacer.wait() if pacer is not None else clock()
-        stop = interrupted() if interrupted is not None else None
-        if stop is not None:
-            e = Interrupted(stop[1], stop[0])
-            e.episode = log["summary"] = partial()
-            raise e
-        res, seen = _fresh(env, res, seen, step, pacer, pipe, carry)
-        captured = getattr(res, "captured_at", None)
-        captured = clock() if captured is None else float(captured)
-        t0 = clock()
-        fault = _reading_fault(res, deadline, max_observation_age)
-        if fault is not None:
-            fault_since = t0 if fault_since is None else fault_since
-            if max_reading_gap is not None and t0 - fault_since > max_reading_gap:
-                e = ReadingsLost(f"the arms' readings were unusable for {t0 - fault_since:.2f} "
-                                 f"s (limit {max_reading_gap:g} s): {fault}")
-                e.episode = log["summary"] = partial()
-                raise e
-            answer, info = None, {"error": fault}
-        else:
-            fault_since = None
-            answer, info = client.act(seen, res.desired_goal)
-        t_answer = clock()
-        rtt, age = t_answer - t0, t_answer - captured
-        rtts.append(rtt * 1e3)
-        action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
-                                     max_observation_age)
-        if fault is not None:
-            reason = "stale"
-        if why is not None:
-            stale += reason == "stale"
-            errors.append(why)
-            decision = safety.hold(env.target, reason=reason)
-            stops += 1
-            carry = pipe.hold(carry)
-        else:
-            action, carry = pipe.act(carry, action)
-            proposed, ctrl = env.command_targets(action)
-            grip = res.observation[:, grip_slice[0]:grip_slice[1]]
-            decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
-            ctrl = _limit_fingers(safety, ctrl, decision)
-        _log_step(log["steps"], tick, age, seen[:, :obs_lib.OBS_SIZE], res.desired_goal,
-                  action, info, decision, ctrl, why)
-        res = env.step_targets(decision.target, ctrl)
-        step_ms.append((clock() - tick) * 1e3)
-        log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
-        seen, carry = pipe.observe(carry, res.observation)
-        clear_min = min(clear_min, res.arm_clearance)
-        try:
+    try:
+        for step in range(env.episode_length):
+            tick = pacer.wait() if pacer is not None else clock()
+            _interrupt(interrupted)
+            res, seen = _fresh(env, res, seen, step, pacer, pipe, carry)
+            captured = getattr(res, "captured_at", None)
+            captured = clock() if captured is None else float(captured)
+            t0 = clock()
+            fault = watch.check(res, t0)
+            answer, info = ((None, {"error": fault}) if fault is not None
+                            else client.act(seen, res.desired_goal))
+            t_answer = clock()
+            rtt, age = t_answer - t0, t_answer - captured
+            rtts.append(rtt * 1e3)
+            action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
+                                         max_observation_age)
+            if fault is not None:
+                reason = "stale"
+            if why is not None:
+                stale += reason == "stale"
+                errors.append(why)
+                decision = safety.hold(env.target, reason=reason)
+                stops += 1
+                carry = pipe.hold(carry)
+            else:
+                action, carry = pipe.act(carry, action)
+                proposed, ctrl = env.command_targets(action)
+                grip = res.observation[:, grip_slice[0]:grip_slice[1]]
+                decision = safety.filter(env.target, proposed, res.link_points, tool=grip)
+                ctrl = _limit_fingers(safety, ctrl, decision)
+            _log_step(log["steps"], tick, age, seen[:, :obs_lib.OBS_SIZE], res.desired_goal,
+                      action, info, decision, ctrl, why)
+            res = env.step_targets(decision.target, ctrl)
+            step_ms.append((clock() - tick) * 1e3)
+            log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
+            seen, carry = pipe.observe(carry, res.observation)
+            clear_min = min(clear_min, res.arm_clearance)
             _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")
-        except ServiceOutage as e:
-            e.episode = log["summary"] = _episode_summary(
-                res, stops, errors, clear_min, rtts, complete=False, stale=stale,
-                step_ms=step_ms)
-            raise
+    except (ServiceOutage, Interrupted, ReadingsLost) as e:
+        e.episode = log["summary"] = _episode_summary(
+            res, stops, errors, clear_min, rtts or [0.0], complete=False, stale=stale,
+            step_ms=step_ms)
+        raise
     log["summary"] = _episode_summary(res, stops, errors, clear_min, rtts, stale=stale,
                                       step_ms=step_ms)
     return log["summary"]

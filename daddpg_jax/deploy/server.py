@@ -23,12 +23,13 @@ nesting deeper than ``max_depth``; 401 a token is required (``token``) and the r
 408 the request line, headers and body not received within ``request_timeout`` seconds of the
 request's first byte; 411 no Content-Length, or a chunked body; 413 body over ``max_body``
 bytes (answered from the header; see below); 415 a Content-Type other than JSON; 431 request
-line and headers over 64 KiB; 500 an unexpected exception, or a policy that produced a
-non-finite action (never sent); 501 a method other than GET and POST; 503 ``max_connections``
-connections already open. An answer to a request whose framing or headers are refused (400
-framing, 401, 408, 411, 413, 431, 500, 501, 503) closes the connection (``Connection:
-close``); a well-framed request with a bad body, path, method or Content-Type (400, 404, 405,
-415) keeps it open. The server keeps serving in every case.
+line and headers over 64 KiB (``MAX_HEAD``); 500 an unexpected exception, a policy that
+produced a non-finite action (never sent), or an ONNX policy stopped at its compute-time cap
+(``OnnxPolicy.max_run_s``; no action is sent); 501 a method other than GET and POST; 503
+``max_connections`` connections already open. An answer to a request whose framing or headers
+are refused (400 framing, 401, 408, 411, 413, 431, 500, 501, 503) closes the connection
+(``Connection: close``); a well-framed request with a bad body, path, method or Content-Type
+(400, 404, 405, 415) keeps it open. The server keeps serving in every case.
 
 Limits (``ServiceLimits``): every read of a request is bounded by the request's deadline, so a
 client that trickles bytes holds its thread for ``request_timeout`` seconds at most; a
@@ -61,6 +62,7 @@ import numpy as np
 
 from daddpg_jax.deploy import NumpyPolicy
 from daddpg_jax.deploy.client import TOKEN_HEADER, PolicyClient  # noqa: F401 - re-exported
+from daddpg_jax.deploy.onnx_policy import ComputeTimeout
 from daddpg_jax.deploy.request_body import (  # noqa: F401 - REQUEST_FIELDS, json_depth_exceeds re-exported
     REQUEST_FIELDS,
     RequestError,
@@ -79,7 +81,7 @@ MAX_DRAIN = 64 * 1024 * 1024
 LINGER_S = 0.5  # least time a closing connection is drained after its answer
 ERROR_PAUSE_S = 0.01  # after an error answer, a kept connection's next request waits this long
 REFUSAL_THREADS = 8  # connections over the cap answered 503 at once; beyond, closed unanswered
-MAX_HEAD = 64 * 1024  # request line + headers, bytes (h11's limit; more: 431)
+MAX_HEAD = 64 * 1024  # request line + headers, bytes (more: 431)
 SERVER_NAME = "daddpg-policy/2"
 MAX_ID_CHARS = 64
 
@@ -181,6 +183,7 @@ class _Handler(socketserver.BaseRequestHandler):
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.limits: ServiceLimits = self.server.limits
         self.conn = h11.Connection(h11.SERVER, max_incomplete_event_size=MAX_HEAD)
+        self.fed = 0  # bytes of the connection handed to h11
         self.deadline: float | None = None
         self.linger = False
         self.what = "-"  # the current request's method and target, for --verbose
@@ -218,7 +221,12 @@ class _Handler(socketserver.BaseRequestHandler):
                 data = self.sock.recv(65536)
             except TimeoutError:
                 raise _DeadlinePassed from None
+        self.fed += len(data)
         self.conn.receive_data(data)
+
+    def _consumed(self) -> int:
+        """Bytes of the connection that h11 has parsed (fed, less what it still buffers)."""
+        return self.fed - len(self.conn.trailing_data[0])
 
     def _event(self):
         while True:
@@ -269,6 +277,7 @@ class _Handler(socketserver.BaseRequestHandler):
     def _one_request(self) -> bool:
         """Reads, answers and finishes one request; True when the connection stays open."""
         self.deadline, self.what, self.errored = None, "-", False
+        start = self._consumed()
         try:
             try:
                 ev = self._event()
@@ -281,6 +290,12 @@ class _Handler(socketserver.BaseRequestHandler):
             if isinstance(ev, h11.ConnectionClosed):
                 return False
             self.server.count("requests")
+            # h11's limit holds only while the head is incomplete: a whole head that arrived
+            # in few reads passes it, so its size is checked here
+            head = self._consumed() - start
+            if head > MAX_HEAD:
+                return not self._error(431, f"request line and headers of {head} bytes exceed "
+                                            f"the limit of {MAX_HEAD} bytes", close=True)
             close = self._route(ev)
         except _DeadlinePassed:
             self.server.count("timeouts")
@@ -420,6 +435,8 @@ class _Handler(socketserver.BaseRequestHandler):
             action = np.asarray(p.act(obs, goal), np.float32)
         except ValueError as e:
             raise RequestError(400, str(e)) from None
+        except ComputeTimeout as e:  # an ONNX graph stopped at its compute cap
+            raise RequestError(500, f"{e}; no action is sent", close=True) from None
         if action.shape != (p.num_arms * p.arm_action,) or not np.all(np.isfinite(action)):
             self.server.count("nonfinite")
             raise RequestError(500, "the policy produced a non-finite or malformed action; "
