@@ -24,7 +24,7 @@ import pytest
 
 from daddpg_jax.cli import robot_client
 from daddpg_jax.deploy import NumpyPolicy, robot
-from daddpg_jax.deploy.arms import ArmsError, CallGuard, bounded, safety_of_spec
+from daddpg_jax.deploy.arms import ArmsError, CallGuard, bounded, probe_rtde, safety_of_spec
 from daddpg_jax.deploy.gate import GatedArms, GateRefusal
 from daddpg_jax.deploy.limits import SHIPPED, RobotLimits
 from daddpg_jax.deploy.policy import task_settings
@@ -321,21 +321,36 @@ def test_a_hung_driver_call_is_reported_by_the_guard():
 
 
 def test_a_connection_that_never_answers_is_bounded():
-    """~0.5 s: a TCP listener that accepts and never answers: connecting is cut at the
-    timeout with one line (before: >= 70 s without a line); a constructor that hangs too."""
+    """~0.5 s: a controller address that accepts TCP and never answers: the RTDE probe cuts it
+    at the timeout with one line (before: >= 70 s without a line, inside ur_rtde's
+    constructor, which holds the interpreter); a controller that answers the RTDE version
+    passes; a Python-level constructor that hangs is cut by `bounded`."""
     with pytest.raises(ArmsError, match="did not answer within 0.2 s"):
         bounded(lambda: time.sleep(5), 0.2, "the left arm at 10.0.0.1")
-    rtde_receive = pytest.importorskip("rtde_receive")
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(4)
-    port = srv.getsockname()[1]
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(4)
+    port = silent.getsockname()[1]
     t0 = time.perf_counter()
-    with pytest.raises(ArmsError, match="(did not answer within 0.3 s|cannot connect)"):
-        bounded(lambda: rtde_receive.RTDEReceiveInterface("127.0.0.1", -1.0, [], False, False,
-                                                          port), 0.3, "the left arm")
-    assert time.perf_counter() - t0 < 2.0
-    srv.close()
+    with pytest.raises(ArmsError, match="no RTDE answer on port .* within 0.3 s"):
+        probe_rtde("127.0.0.1", 0.3, port=port)
+    assert time.perf_counter() - t0 < 1.0
+    silent.close()
+    honest = socket.socket()
+    honest.bind(("127.0.0.1", 0))
+    honest.listen(4)
+
+    def answer():
+        conn, _ = honest.accept()
+        conn.recv(5)
+        conn.sendall(bytes([0, 4, 86, 1]))  # size 4, "V", accepted
+        conn.close()
+
+    t = threading.Thread(target=answer, daemon=True)
+    t.start()
+    probe_rtde("127.0.0.1", 1.0, port=honest.getsockname()[1])
+    t.join(2)
+    honest.close()
 
 
 def test_the_controller_watchdog_stops_an_arm_the_client_stopped_talking_to(policy):
@@ -447,3 +462,25 @@ def test_a_start_pose_outside_the_box_refuses_at_the_gate(policy):
     with pytest.raises(GateRefusal, match="start pose"):
         env.reset(np.random.default_rng(0))
     assert env.arms.arms.cell.steps == 0
+
+
+def test_arms_ur_against_a_silent_controller_is_one_line(policy, tmp_path, capsys):
+    """~0.5 s: daddpg-robot-client --arms ur against an address whose RTDE port accepts TCP and
+    never answers: one line and exit 4 after the limits' connect_timeout (0.3 s here)."""
+    pytest.importorskip("rtde_receive")
+    silent = socket.socket()
+    silent.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        silent.bind(("127.0.0.2", 30004))
+    except OSError:
+        pytest.skip("127.0.0.2:30004 is taken")
+    silent.listen(4)
+    lim = _limits_file(tmp_path, connect_timeout=0.3, deadline=0.03, max_observation_age=0.08)
+    t0 = time.perf_counter()
+    with PolicyServer(policy, port=0) as srv:
+        code = robot_client.main(["--server", srv.url, "--episodes", "1", "--limits", lim,
+                                  "--arms", "ur", "--ur-hosts", "127.0.0.2,127.0.0.2"])
+    silent.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 4 and "no RTDE answer on port 30004 within 0.3 s" in err[-1]
+    assert time.perf_counter() - t0 < 3.0

@@ -50,6 +50,7 @@ a suggestion) and ``read()`` returning the world-frame dict of
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 import time
 from dataclasses import dataclass
@@ -302,6 +303,41 @@ def bounded(fn, timeout: float, what: str):
     return box["out"]
 
 
+RTDE_PORT = 30004
+RTDE_REQUEST_PROTOCOL_VERSION = 86  # "V"
+RTDE_PROTOCOL_VERSION = 2
+
+
+def probe_rtde(host: str, timeout: float, port: int = RTDE_PORT) -> None:
+    """Asks the controller at ``host`` for RTDE protocol version 2 with plain sockets, each
+    step bounded by ``timeout`` s; ArmsError (one line) when it does not answer in time or
+    refuses. ur_rtde's constructors hold the interpreter while they connect (no thread or
+    signal can cut them), so an address that accepts TCP and never answers is found here,
+    before they run."""
+    deadline = time.monotonic() + timeout
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as s:
+            s.sendall(struct.pack(">HBH", 5, RTDE_REQUEST_PROTOCOL_VERSION,
+                                  RTDE_PROTOCOL_VERSION))
+            head = b""
+            while len(head) < 4:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                s.settimeout(left)
+                chunk = s.recv(4 - len(head))
+                if not chunk:
+                    raise ArmsError(f"RTDE port {port} closed the connection")
+                head += chunk
+    except TimeoutError:
+        raise ArmsError(f"no RTDE answer on port {port} within {timeout:g} s") from None
+    except OSError as e:
+        raise ArmsError(f"RTDE port {port}: {e.strerror or e}") from None
+    size, kind, accepted = struct.unpack(">HBB", head)
+    if kind != RTDE_REQUEST_PROTOCOL_VERSION or not accepted:
+        raise ArmsError(f"RTDE port {port} refused protocol version {RTDE_PROTOCOL_VERSION}")
+
+
 class CallGuard:
     """Bounds every driver call of `URArms` to ``timeout`` s: a call that has not returned by
     then is reported through ``on_overrun(line)`` from a guard thread (default: the line on
@@ -481,6 +517,10 @@ def receive_only(hosts, timeout: float = CONNECT_TIMEOUT_S) -> list:
     out = []
     for name, host in zip(ARM_NAMES, hosts):
         try:
+            try:
+                probe_rtde(host, timeout)
+            except ArmsError as e:
+                raise ArmsError(f"cannot connect to the {name} arm at {host}: {e}") from None
             out.append(bounded(lambda h=host: rtde_receive.RTDEReceiveInterface(h), timeout,
                                f"the {name} arm at {host}"))
         except ArmsError:
@@ -508,6 +548,10 @@ def connect_ur(hosts, period: float, dry_run: bool = False, gripper_factory=None
     try:
         for name, host in zip(ARM_NAMES, hosts):
             what = f"the {name} arm at {host}"
+            try:
+                probe_rtde(host, connect_timeout)
+            except ArmsError as e:
+                raise ArmsError(f"cannot connect to {what}: {e}") from None
             receives.append(bounded(lambda h=host: rtde_receive.RTDEReceiveInterface(h),
                                     connect_timeout, what))
             if not dry_run:
