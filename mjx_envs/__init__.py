@@ -23,8 +23,12 @@ import importlib
 from typing import TYPE_CHECKING
 
 from mjx_envs import registry
-from mjx_envs.registry import Task  # noqa: F401  (public: the record `register` takes)
-from mjx_envs.settings import PHYSICS, default_config, replace_config  # noqa: F401  (JAX-free)
+from mjx_envs.registry import (
+    Task,  # noqa: F401  (public: the record `register` takes)
+    default_config,  # noqa: F401  (public)
+)
+from mjx_envs.schema import replace_config
+from mjx_envs.settings import PHYSICS
 
 if TYPE_CHECKING:
     from mjx_envs.core import DualArmEnv
@@ -57,12 +61,29 @@ def __getattr__(name: str):
         return {t.name: t.dense_gym_id for t in registry.tasks() if t.dense_gym_id}
     by_class = {registry.class_name(n): n for n in registry.task_names()}
     if name in by_class:
-        return registry.env_class(by_class[name])
+        return env_class(by_class[name])
     raise AttributeError(f"module 'mjx_envs' has no attribute {name!r}")
 
 
 def __dir__():
     return sorted(set(globals()) | set(_LAZY) | {"TASKS", "ENV_IDS", "DENSE_ENV_IDS"})
+
+
+_ENV_CLASSES: dict[str, type] = {}
+
+
+def env_class(task: str) -> type:
+    """The JAX env class of `task` (imports JAX): `mjx_envs.core.DualArmEnv`, or the object-task
+    base when the task has an object, with ``task_name`` set."""
+    if task not in _ENV_CLASSES:
+        t = registry.get(task)
+        if t.object is None:
+            from mjx_envs.core import DualArmEnv as base  # lazy: `import mjx_envs` is JAX-free
+        else:
+            from mjx_envs.tasks.object_task import ObjectPoseTask as base  # lazy: as above
+        _ENV_CLASSES[task] = type(registry.class_name(task), (base,),
+                                  {"task_name": task, "__module__": t.module or __name__})
+    return _ENV_CLASSES[task]
 
 
 def _gym_ids(task) -> list:
@@ -115,7 +136,7 @@ def make(task: str, physics: str = "auto", **overrides) -> DualArmEnv:
     registry.get(task)   # ValueError naming the registered tasks
     if physics not in PHYSICS:
         raise ValueError(f"unknown physics {physics!r}: choose 'auto', 'mjx' or 'c'")
-    cls = registry.env_class(task)
+    cls = env_class(task)
     cfg = replace_config(cls.default_config(), **overrides)
     return importlib.import_module("mjx_envs.wrappers").wrap(cls(cfg, physics=physics))
 

@@ -27,10 +27,10 @@ import numpy as np
 from flax import struct
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import registry, rules, settings
+from mjx_envs import registry, rules
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
-from mjx_envs.settings import TaskConfig, replace_config  # noqa: F401  (re-exported)
+from mjx_envs.settings import TaskConfig
 
 NUM_ARMS = 2
 SAMPLER = rules.JaxSampler()
@@ -56,7 +56,7 @@ class State:
 class DualArmEnv:
     """Two UR3 arms with grippers, the plain env: true observations, nominal physics. What
     differs between tasks (goals, object placement, achieved goals, rewards) is ``self.rules``,
-    a `mjx_envs.rules.TaskRules` bound to the task's settings (`mjx_envs.settings`, chosen by
+    a `mjx_envs.rules.TaskRules` bound to the task's settings (`mjx_envs.registry`, chosen by
     ``task_name``) and scene. Randomization, perturbations and the action history are wrappers
     around it (`mjx_envs.wrappers`; ``mjx_envs.make`` applies the ones its config turns on)."""
 
@@ -69,8 +69,8 @@ class DualArmEnv:
 
     @classmethod
     def default_config(cls) -> TaskConfig:
-        """The task's settings from `mjx_envs.settings`."""
-        return settings.default_config(cls.task_name)
+        """The task's settings (`mjx_envs.registry.default_config`)."""
+        return registry.default_config(cls.task_name)
 
     def __init__(self, config: TaskConfig | None = None, physics: str = "auto"):
         self.config = config or self.default_config()

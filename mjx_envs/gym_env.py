@@ -59,13 +59,13 @@ from mjx_envs import (  # noqa: F401  (ENV_IDS, DENSE_ENV_IDS: read here by call
     DENSE_ENV_IDS,
     ENV_IDS,
     pipeline,
-    register_gymnasium_envs,
+    registry,
     rules,
     settings,
 )
 from mjx_envs import observation as obs_lib
 from mjx_envs.numpy_env import NumpyDualArmEnv
-from mjx_envs.schema import fields
+from mjx_envs.schema import fields, replace_config
 
 NUM_ARMS = 2
 
@@ -73,14 +73,14 @@ REWARD_TYPES = ("sparse", "dense")
 
 
 def task_config(task: str, **overrides) -> settings.TaskConfig:
-    """The task's settings (`mjx_envs.settings`) with ``overrides`` applied (unknown names are
-    a ValueError)."""
-    base = settings.default_config(task)
+    """The task's settings (`mjx_envs.registry.default_config`) with ``overrides`` applied
+    (unknown names are a ValueError)."""
+    base = registry.default_config(task)
     unknown = sorted(set(overrides) - set(fields(base)))
     if unknown:
         raise ValueError(f"unknown setting(s) {unknown} for task {task!r}; "
                          f"valid: {sorted(fields(base))}")
-    return settings.replace_config(base, **overrides)
+    return replace_config(base, **overrides)
 
 
 def task_settings(task: str, **overrides) -> dict[str, Any]:
@@ -244,8 +244,3 @@ class DualUR3GoalEnv(gym.Env):
             self._renderer.close()
             self._renderer = None
 
-
-def register_envs() -> list[str]:
-    """Registers ``DualUR3{Reach,Push,Pickup,Pot}-v0`` and their ``...Dense-v0`` variants with
-    Gymnasium (idempotent; ``import mjx_envs`` already did). Returns the ids."""
-    return register_gymnasium_envs()

@@ -1,9 +1,21 @@
-"""The MJCF scenes as MuJoCo models (MuJoCo and NumPy only: no JAX).
+"""The MJCF scenes as MuJoCo models, in every physics version (MuJoCo and NumPy only: no JAX).
 
 The scenes ship inside the package: ``mjx_envs/assets`` (in a source tree a link to the
 top-level ``assets/``) is read through ``importlib.resources``, so an installed wheel finds them
 too. Both the JAX env (`mjx_envs.core`) and the NumPy simulator (`mjx_envs.numpy_env`) load
 their model here.
+
+Physics versions (the current one: `mjx_envs.settings.PHYSICS_VERSION`, the default of every
+task's ``physics_version``). 1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger
+boxes, finger-pot body and finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm
+larger on every side with margin 0 (MJX's box-box collision ignores contact margins), friction
+0.05 on the finger pairs that only block (pot body; bar middle and caps). 3: MJX returns each
+box-box contact point once, as the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`,
+which the C engine ignores), and pot's finger-handle contacts are softer (solimp 0.9 0.95); on
+the C engine, push and pick up act in versions 2 and 3 alike. See docs/TASKS.md, "MJX vs C".
+The scenes in assets/ are the current version; `load_model` builds the older ones from them
+(version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`), so that a run or a policy file
+acts with the physics it was trained on (`physics_version_note` says when it does not).
 """
 
 from __future__ import annotations
@@ -16,11 +28,66 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjx_envs import settings
+from mjx_envs import registry, settings
 
 NUM_ARMS = 2
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC,
          "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+
+MJX_UNIQUE_CONTACTS = "mjx_unique_contact_points"
+"""Name of a scene's custom numeric: 1 = MJX returns each contact point of a box-box or
+convex-convex pair once, as the C engine does (`mjx_envs.physics.mjx_contacts`)."""
+
+PHYSICS_V2 = dict(
+    pair_solimp={
+        "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
+                          "pot_handle_r": (0.95, 0.99, 0.001, 0.5, 2.0)},
+    },
+)
+"""Physics version 2, as differences from the shipped scenes besides the numeric
+`MJX_UNIQUE_CONTACTS` (which it lacks): per scene the solimp of the finger pairs with the named
+object geoms."""
+
+PHYSICS_V1 = dict(
+    finger_size=(0.012, 0.006, 0.035),
+    finger_pair_margin=0.005,
+    pair_friction={
+        "scene_pickup.xml": {"bar_mid": (1.5, 1.5, 0.01, 0.0001, 0.0001),
+                             "bar_cap_l": (1.5, 1.5, 0.01, 0.0001, 0.0001),
+                             "bar_cap_r": (1.5, 1.5, 0.01, 0.0001, 0.0001)},
+        "scene_pot.xml": {"pot_body": (0.5, 0.5, 0.005, 0.0001, 0.0001)},
+    },
+)
+"""Physics version 1, as differences from the shipped scenes: the half-sizes of every finger
+box (geoms ``<arm>_finger1/2``), the margin of every contact pair with a finger, and per scene
+the friction of the finger pairs with the named object geoms."""
+
+
+def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
+    """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
+    versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
+    tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names."""
+    if version == 3 and engine == "c":
+        return (registry.is_task(task) and registry.get(task).config.scene
+                in PHYSICS_V2["pair_solimp"])
+    return (version in (2, 3) and registry.is_task(task)
+            and registry.get(task).object is not None)
+
+
+def physics_version_note(recorded, task: str, simulated: int | None = None,
+                         engine: str | None = None) -> str | None:
+    """None when a run or a policy file of `task`, trained with physics version `recorded`, is
+    simulated (version `simulated`, default `settings.PHYSICS_VERSION`) with physics that act
+    alike on `engine` (None: on either engine); else one line saying which version it was
+    trained with and which one simulates it."""
+    version = settings.recorded_physics_version(recorded)
+    now = settings.PHYSICS_VERSION if simulated is None else int(simulated)
+    lo, hi = sorted((version, now))
+    if not any(physics_changed(v, task, engine) for v in range(lo + 1, hi + 1)):
+        return None
+    return (f"trained with physics version {version}, simulated here with version {now} "
+            f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "
+            f"training")
 
 
 def _assets():
@@ -55,7 +122,7 @@ def load_model(scene: str, timestep: float | None = None, cone: str | None = Non
                physics_version: int | None = None) -> mujoco.MjModel:
     """The scene's model with the task's ``timestep`` and friction ``cone`` (when given), in
     physics version ``physics_version`` (default: the current one, the scene as shipped; older
-    ones apply `mjx_envs.settings`'s record of what they had instead, e.g. `PHYSICS_V1`)."""
+    ones apply this module's record of what they had instead, e.g. `PHYSICS_V1`)."""
     if cone is not None and cone not in CONES:
         raise ValueError(f"cone must be one of {sorted(CONES)}, got {cone!r}")
     version = settings.PHYSICS_VERSION if physics_version is None else int(physics_version)
@@ -85,11 +152,11 @@ def _is_finger(name: str) -> bool:
 def _physics_v2(spec: mujoco.MjSpec, scene: str) -> None:
     """Turns a shipped scene's spec (physics version 3) into version 2 (`PHYSICS_V2`): without
     the numeric that makes MJX return each box-box contact point once
-    (`settings.MJX_UNIQUE_CONTACTS`), with version 2's finger-pair solimp."""
+    (`MJX_UNIQUE_CONTACTS`), with version 2's finger-pair solimp."""
     for numeric in list(spec.numerics):
-        if numeric.name == settings.MJX_UNIQUE_CONTACTS:
+        if numeric.name == MJX_UNIQUE_CONTACTS:
             spec.delete(numeric)
-    _finger_pairs(spec, "solimp", settings.PHYSICS_V2["pair_solimp"].get(scene, {}))
+    _finger_pairs(spec, "solimp", PHYSICS_V2["pair_solimp"].get(scene, {}))
 
 
 def _finger_pairs(spec: mujoco.MjSpec, field: str, values: dict) -> None:
@@ -105,7 +172,7 @@ def _finger_pairs(spec: mujoco.MjSpec, field: str, values: dict) -> None:
 
 def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
     """Turns a version-2 spec (`_physics_v2`) into version 1 (`PHYSICS_V1`)."""
-    v1 = settings.PHYSICS_V1
+    v1 = PHYSICS_V1
     for geom in spec.geoms:
         if _is_finger(geom.name):
             geom.size = v1["finger_size"]

@@ -15,15 +15,15 @@ the policy service for an action, move the Cartesian targets. The step mirrors
 - goals, the object's initial placement, achieved goals, success and rewards from the same
   rules as the JAX env (`mjx_envs.rules`, ``xp = numpy``), drawn from a NumPy ``Generator``.
 
-Settings: the task's entry of `mjx_envs.settings`; ``settings`` (a dict, e.g. a policy export's
-``env`` settings, or a `TaskConfig`) overrides them. Dict keys that are not config fields (such
-as the export's derived ``dt``) are ignored.
+Settings: the task's defaults; ``settings`` (a dict, e.g. a policy export's ``env`` settings,
+or a `TaskConfig`) overrides them (`mjx_envs.registry.saved_config`). Dict keys that are not
+config fields (such as the export's derived ``dt``) are ignored.
 
 Training-only options of pickup and pot (`mjx_envs.settings.TRAINING_ONLY_FIELDS`):
 ``goal_rest_fraction`` is supported (goals come from the shared rules, with the same draws as
 the JAX env); ``grasp_start_fraction`` is not: it is set to 0 in ``config`` with a warning, and
 every episode starts from the standard initial state (the grasped states are recorded by the
-JAX env). The robot client evaluates the standard task (`mjx_envs.settings.test_overrides`).
+JAX env). The robot client evaluates the standard task (`mjx_envs.registry.test_overrides`).
 The observation and action perturbations (`mjx_envs.perturb`) are not simulated here either
 (set to 0 with a warning): the robot client applies them to what it reads and sends.
 
@@ -49,9 +49,10 @@ from mjx_envs import observation as obs_lib
 from mjx_envs import perturb, registry, rules
 from mjx_envs import settings as settings_lib
 from mjx_envs.model import home_state, load_model
+from mjx_envs.schema import replace_config
 
 NUM_ARMS = 2
-SUPPORTED_TASKS = settings_lib.TASKS
+SUPPORTED_TASKS = registry.TASKS
 SAMPLER = rules.NumpySampler()
 
 
@@ -75,25 +76,25 @@ class NumpyDualArmEnv:
 
     def __init__(self, settings: Mapping[str, Any] | settings_lib.TaskConfig | None = None,
                  task: str = settings_lib.DEFAULT_TASK, exact: bool = True):
-        cfg = settings_lib.saved_config(task, settings)
+        cfg = registry.saved_config(task, settings)
         if getattr(cfg, "grasp_start_fraction", 0.0) > 0:
             warnings.warn(f"NumpyDualArmEnv does not start episodes from grasped states: "
                           f"grasp_start_fraction={cfg.grasp_start_fraction} is set to 0",
                           stacklevel=2)
-            cfg = settings_lib.replace_config(cfg, grasp_start_fraction=0.0)
+            cfg = replace_config(cfg, grasp_start_fraction=0.0)
         on = {k: getattr(cfg, k) for k in perturb.FIELDS if getattr(cfg, k)}
         if on:
             warnings.warn(f"NumpyDualArmEnv simulates true observations and actions: {on} "
                           "set to 0 (the robot client applies perturbations: "
                           "daddpg-robot-client --perturb)", stacklevel=2)
-            cfg = settings_lib.replace_config(cfg, **{k: type(v)(0) for k, v in on.items()})
+            cfg = replace_config(cfg, **{k: type(v)(0) for k, v in on.items()})
         on = {k: getattr(cfg, k) for k in settings_lib.RANDOMIZATION_FIELDS
               if getattr(cfg, k, 0.0)}
         if on:
             warnings.warn(f"NumpyDualArmEnv simulates the nominal physics: {on} set to 0 "
                           "(physics randomization is in the JAX env, mjx_envs/randomize.py)",
                           stacklevel=2)
-            cfg = settings_lib.replace_config(cfg, **{k: 0.0 for k in on})
+            cfg = replace_config(cfg, **{k: 0.0 for k in on})
         self.config = cfg
         self.settings = dataclasses.asdict(cfg)
         self.task = task

@@ -2,17 +2,19 @@
 
 A task is one module (``mjx_envs/tasks/<name>.py`` for the built-in ones) that builds a `Task`
 and calls `register` (public as ``mjx_envs.register``). Everything that lists or looks up tasks
-reads it from here: the settings tables (`mjx_envs.settings`), the training presets
-(`daddpg_jax.algo.config`), the Gymnasium ids (`mjx_envs.gym_env`), the scripted controllers
-and the commands' ``--task`` choices. docs/TASKS.md, "Adding a task", walks through a new one.
+reads it from here: the tables derived from the tasks (``TASKS``, ``TASK_SETTINGS``,
+``OBJECTS``), a task's settings (`default_config`, `task_config`, `saved_config`,
+`test_overrides`), the training presets (`daddpg_jax.algo.config`), the Gymnasium ids
+(`mjx_envs.gym_env`), the scripted controllers and the commands' ``--task`` choices.
+docs/TASKS.md, "Adding a task", walks through a new one.
 
 A task that lives outside this package is found through its module: `import_task_module`
 imports it (a training run records the module as ``task_module`` in its config.json, so
 evaluation and export in another process find the task again).
 
-Standard library only at import (no JAX, NumPy or MuJoCo): the robot side and the command-line
-parsers read the registry without JAX. A task module must keep to that too (the scripted
-controller imports JAX inside its body).
+Standard library only at import (no JAX, NumPy or MuJoCo; of this package only
+`mjx_envs.schema`): the robot side and the command-line parsers read the registry without JAX.
+A task module must keep to that too (the scripted controller imports JAX inside its body).
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ import dataclasses
 import importlib
 from collections.abc import Callable
 from typing import Any
+
+from mjx_envs.schema import fields, replace_config
 
 BUILTIN_MODULES = ("mjx_envs.tasks.reach", "mjx_envs.tasks.push", "mjx_envs.tasks.pickup",
                    "mjx_envs.tasks.pot")
@@ -71,7 +75,6 @@ class Task:
 
 
 _TASKS: dict[str, Task] = {}
-_ENV_CLASSES: dict[str, type] = {}
 _LISTENERS: list[Callable[[Task], None]] = []
 _builtins_loaded = False
 
@@ -148,6 +151,52 @@ def gym_ids(name: str) -> tuple[str, str]:
     return f"DualUR3{class_name(name)}-v0", f"DualUR3{class_name(name)}Dense-v0"
 
 
+def __getattr__(name: str):
+    """The tables derived from the tasks (read when asked for, so a task registered later is in
+    them): ``TASKS`` (names, `task_names`), ``TASK_SETTINGS`` (name -> settings defaults) and
+    ``OBJECTS`` (name -> (free joint, body, point sites), object tasks only)."""
+    if name == "TASKS":
+        return task_names()
+    if name == "TASK_SETTINGS":
+        return {t.name: t.config for t in tasks()}
+    if name == "OBJECTS":
+        return {t.name: t.object for t in tasks() if t.object is not None}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def default_config(name: str):
+    """The settings defaults of task `name` (a frozen `mjx_envs.settings.TaskConfig`)."""
+    return get(name).config
+
+
+def task_config(name: str, **overrides):
+    """Task `name`'s settings with `overrides` applied (lists from JSON become tuples)."""
+    return replace_config(default_config(name), **overrides)
+
+
+def saved_config(name: str, saved=None):
+    """Task `name`'s settings holding the values in `saved`: a dict (e.g. a policy export's env
+    settings; keys that are not fields, such as ``dt``, are ignored; fields it lacks keep the
+    task's values) or a whole config of the task's class (returned as is)."""
+    base = default_config(name)
+    if saved is None:
+        return base
+    if dataclasses.is_dataclass(saved) and not isinstance(saved, type):
+        if not isinstance(saved, type(base)):
+            raise TypeError(f"task {name!r} needs a {type(base).__name__}, got "
+                            f"{type(saved).__name__}")
+        return saved
+    names = fields(base)
+    return replace_config(base, **{k: v for k, v in dict(saved).items() if k in names})
+
+
+def test_overrides(name: str) -> dict:
+    """The env overrides that give the standard task for test episodes: every training-only
+    field of task `name` off (`mjx_envs.settings.TaskConfig.training_only_off`); {} for a task
+    that is not registered."""
+    return get(name).config.training_only_off() if is_task(name) else {}
+
+
 def make_rules(name: str, config, model):
     """The rules of task `name` bound to `config` and a compiled scene `model`."""
     task = get(name)
@@ -157,20 +206,6 @@ def make_rules(name: str, config, model):
 def class_name(name: str) -> str:
     """The env class name of task `name`: 'pick_up' -> 'PickUp'."""
     return "".join(p.capitalize() for p in name.split("_"))
-
-
-def env_class(name: str) -> type:
-    """The JAX env class of task `name` (imports JAX): `mjx_envs.core.DualArmEnv`, or the
-    object-task base when the task has an object, with ``task_name`` set."""
-    if name not in _ENV_CLASSES:
-        task = get(name)
-        if task.object is None:
-            from mjx_envs.core import DualArmEnv as base  # lazy: the registry is JAX-free
-        else:
-            from mjx_envs.tasks.object_task import ObjectPoseTask as base  # lazy: as above
-        _ENV_CLASSES[name] = type(class_name(name), (base,), {"task_name": name,
-                                                       "__module__": task.module or __name__})
-    return _ENV_CLASSES[name]
 
 
 def scripted_task_names() -> tuple[str, ...]:

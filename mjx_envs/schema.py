@@ -205,6 +205,17 @@ def from_dict(cls, d: dict, **kw):
     return cls(**vals)
 
 
+def replace_config(obj, **overrides):
+    """``dataclasses.replace`` of a schema dataclass with a clear error for unknown fields;
+    values are validated."""
+    names = fields(obj)
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise ConfigError(f"unknown config field(s) {unknown} for {type(obj).__name__}; "
+                          f"valid: {sorted(names)}")
+    return dataclasses.replace(obj, **overrides)
+
+
 def _plain(v):
     return [_plain(x) for x in v] if isinstance(v, tuple) else v
 

@@ -4,11 +4,10 @@ MuJoCo at import).
 `TaskConfig` holds the fields every task has; `ObjectTaskConfig` adds the object's initial and
 goal pose ranges (push, pickup, pot); `LiftTaskConfig` adds the training-only task-distribution
 options of the lifting tasks (pickup, pot: `TRAINING_ONLY_FIELDS`, switched off for test
-episodes by `test_overrides`). Each task's values are declared in its module
-(`mjx_envs/tasks/<task>.py`) and registered (`mjx_envs.registry`); `TASKS`, `TASK_SETTINGS`
-and `OBJECTS` here are derived from the registry. The JAX env (`mjx_envs.make`), the NumPy
-simulator (`mjx_envs.numpy_env`), the Gymnasium adapter (`mjx_envs.gym_env`) and the robot
-client all read them from here. Fields are declared with
+episodes by `TaskConfig.training_only_off`). Each task's values are declared in its module
+(`mjx_envs/tasks/<task>.py`) and registered (`mjx_envs.registry`, which owns what is derived
+from the tasks: the tables ``TASKS``, ``TASK_SETTINGS`` and ``OBJECTS``, `default_config`,
+`task_config`, `saved_config`, `test_overrides`). Fields are declared with
 `mjx_envs.schema.spec`: type, valid range and docstring, used by validation and ``--help``.
 """
 
@@ -16,83 +15,36 @@ from __future__ import annotations
 
 import dataclasses
 
+# `mjx_envs.registry` owns the names derived from the tasks; these (and `__getattr__`'s tables)
+# are kept here for the readers of this module: the robot side (daddpg_jax/deploy), the tests and
+# docs/results. The registry reads nothing from this module.
 from mjx_envs import registry
-from mjx_envs.schema import ConfigError, fields, finalize, from_dict, spec
+from mjx_envs.registry import (  # noqa: F401
+    default_config,
+    saved_config,
+    task_config,
+    test_overrides,
+)
+from mjx_envs.schema import (
+    ConfigError,
+    fields,
+    finalize,
+    replace_config,  # noqa: F401  (read here too)
+    spec,
+)
 
 PHYSICS_VERSION = 3
-"""Version of the simulated physics (the MJCF scenes in assets/ and how the engines step them).
-1: up to 2026-12-04 (5 mm margin on every finger pair, thin finger boxes, finger-pot body and
-finger-bar middle/cap friction 0.5 / 1.5). 2: finger boxes 5 mm larger on every side with margin
-0 (MJX's box-box collision ignores contact margins), friction 0.05 on the finger pairs that
-only block (pot body; bar middle and caps). 3: MJX returns each box-box contact point once, as
-the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`, which the C engine ignores), and
-pot's finger-handle contacts are softer (solimp 0.9 0.95); on the C engine, push and pick up act
-in versions 2 and 3 alike. See docs/TASKS.md, "MJX vs C".
-The scenes in assets/ are the current version; `mjx_envs.model.load_model` builds the older
-ones from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`), so that a run or a
-policy file acts with the physics it was trained on (its record: config.json's and the export's
-``physics_version``, absent = 1)."""
-
-
-def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
-    """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
-    versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
-    tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names."""
-    if version == 3 and engine == "c":
-        return (registry.is_task(task) and registry.get(task).config.scene
-                in PHYSICS_V2["pair_solimp"])
-    return (version in (2, 3) and registry.is_task(task)
-            and registry.get(task).object is not None)
-
-MJX_UNIQUE_CONTACTS = "mjx_unique_contact_points"
-"""Name of a scene's custom numeric: 1 = MJX returns each contact point of a box-box or
-convex-convex pair once, as the C engine does (`mjx_envs.physics.mjx_contacts`)."""
-
-PHYSICS_V2 = dict(
-    pair_solimp={
-        "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
-                          "pot_handle_r": (0.95, 0.99, 0.001, 0.5, 2.0)},
-    },
-)
-"""Physics version 2, as differences from the shipped scenes besides the numeric
-`MJX_UNIQUE_CONTACTS` (which it lacks): per scene the solimp of the finger pairs with the named
-object geoms."""
-
-PHYSICS_V1 = dict(
-    finger_size=(0.012, 0.006, 0.035),
-    finger_pair_margin=0.005,
-    pair_friction={
-        "scene_pickup.xml": {"bar_mid": (1.5, 1.5, 0.01, 0.0001, 0.0001),
-                             "bar_cap_l": (1.5, 1.5, 0.01, 0.0001, 0.0001),
-                             "bar_cap_r": (1.5, 1.5, 0.01, 0.0001, 0.0001)},
-        "scene_pot.xml": {"pot_body": (0.5, 0.5, 0.005, 0.0001, 0.0001)},
-    },
-)
-"""Physics version 1, as differences from the shipped scenes: the half-sizes of every finger
-box (geoms ``<arm>_finger1/2``), the margin of every contact pair with a finger, and per scene
-the friction of the finger pairs with the named object geoms."""
+"""Version of the simulated physics (the MJCF scenes in assets/ and how the engines step them):
+the current one, the scenes as shipped. `mjx_envs.model` keeps the history (what each version
+changed, `physics_changed`) and builds the older scenes, so that a run or a policy file acts
+with the physics it was trained on (its record: config.json's and the export's
+``physics_version``, absent = 1; `recorded_physics_version`). See docs/TASKS.md, "MJX vs C"."""
 
 
 def recorded_physics_version(recorded) -> int:
     """The physics version of a record (config.json's or a policy export's
     ``physics_version``): absent (None) means 1, the version before it was recorded."""
     return 1 if recorded is None else int(recorded)
-
-
-def physics_version_note(recorded, task: str, simulated: int | None = None,
-                         engine: str | None = None) -> str | None:
-    """None when a run or a policy file of `task`, trained with physics version `recorded`, is
-    simulated (version `simulated`, default `PHYSICS_VERSION`) with physics that act alike on
-    `engine` (None: on either engine); else one line saying which version it was trained with and
-    which one simulates it."""
-    version = recorded_physics_version(recorded)
-    now = PHYSICS_VERSION if simulated is None else int(simulated)
-    lo, hi = sorted((version, now))
-    if not any(physics_changed(v, task, engine) for v in range(lo + 1, hi + 1)):
-        return None
-    return (f"trained with physics version {version}, simulated here with version {now} "
-            f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "
-            f"training")
 
 
 DEFAULT_TASK = "reach"
@@ -195,6 +147,13 @@ class TaskConfig:
         for lo, hi in (("workspace_low", "workspace_high"), ("goal_low", "goal_high")):
             _check_ordered(self, lo, hi)
 
+    def training_only_off(self) -> dict:
+        """The overrides that give the standard task (test episodes): every field of
+        `TRAINING_ONLY_FIELDS` this config has, set to 0 (off)."""
+        names = fields(self)
+        return {name: type(getattr(self, name))(0) for name in TRAINING_ONLY_FIELDS
+                if name in names}
+
 
 @dataclasses.dataclass(frozen=True)
 class ObjectTaskConfig(TaskConfig):
@@ -239,7 +198,8 @@ class ObjectTaskConfig(TaskConfig):
 @dataclasses.dataclass(frozen=True)
 class LiftTaskConfig(ObjectTaskConfig):
     """`ObjectTaskConfig` plus two options of the training task distribution (pickup, pot),
-    both off by default; test episodes use the standard task (`test_overrides`)."""
+    both off by default; test episodes use the standard task
+    (`mjx_envs.registry.test_overrides`)."""
 
     goal_rest_fraction: float = spec(0.0, "training only: the fraction of episodes whose goal "
                                      "lies at the object's resting height on the table (goal "
@@ -264,7 +224,8 @@ TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction", "obs_noise
                         "obs_dropout", "obs_bias", "obs_period", "latency",
                         *RANDOMIZATION_FIELDS)
 """Task fields that change only the training task distribution (and the observations and
-actions of training episodes); `test_overrides` turns them off for test episodes."""
+actions of training episodes); test episodes turn them off (`TaskConfig.training_only_off`,
+`mjx_envs.registry.test_overrides`)."""
 
 
 def _flat(v):
@@ -285,70 +246,7 @@ CONTACT_DEFAULTS = dict(cone="elliptic", timestep=0.005, n_substeps=8, distance_
 
 
 def __getattr__(name: str):
-    """The tables derived from the task registry (`mjx_envs.registry`; read when asked for, so
-    a task registered later is in them): ``TASKS`` (names), ``TASK_SETTINGS`` (name -> settings
-    defaults) and ``OBJECTS`` (name -> (free joint, body, point sites), object tasks only)."""
-    if name == "TASKS":
-        return registry.task_names()
-    if name == "TASK_SETTINGS":
-        return {t.name: t.config for t in registry.tasks()}
-    if name == "OBJECTS":
-        return {t.name: t.object for t in registry.tasks() if t.object is not None}
+    """``TASKS``, ``TASK_SETTINGS`` and ``OBJECTS``: `mjx_envs.registry`'s tables."""
+    if name in ("TASKS", "TASK_SETTINGS", "OBJECTS"):
+        return getattr(registry, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def check_task(task: str) -> None:
-    registry.get(task)
-
-
-def default_config(task: str) -> TaskConfig:
-    """The task's settings (a frozen dataclass)."""
-    return registry.get(task).config
-
-
-def test_overrides(task: str) -> dict:
-    """The env overrides that give the standard task for test episodes: every field of
-    `TRAINING_ONLY_FIELDS` that the task has, set to 0 (off); {} for tasks this module does
-    not know."""
-    if not registry.is_task(task):
-        return {}
-    cfg = registry.get(task).config
-    names = fields(cfg)
-    return {name: type(getattr(cfg, name))(0) for name in TRAINING_ONLY_FIELDS if name in names}
-
-
-
-def replace_config(cfg: TaskConfig, **overrides) -> TaskConfig:
-    """``dataclasses.replace`` with a clear error for unknown fields; values are validated."""
-    names = fields(cfg)
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise ConfigError(f"unknown config field(s) {unknown} for {type(cfg).__name__}; "
-                          f"valid: {sorted(names)}")
-    return dataclasses.replace(cfg, **overrides)
-
-
-def task_config(task: str, **overrides) -> TaskConfig:
-    """The task's settings with `overrides` applied (lists from JSON become tuples)."""
-    return replace_config(default_config(task), **overrides)
-
-
-def saved_config(task: str, saved=None) -> TaskConfig:
-    """The task's settings holding the values in `saved`: a dict (e.g. a policy export's env
-    settings; keys that are not fields, such as ``dt``, are ignored; fields it lacks keep the
-    task's values) or a whole config of the task's class (returned as is)."""
-    base = default_config(task)
-    if saved is None:
-        return base
-    if isinstance(saved, TaskConfig):
-        if not isinstance(saved, type(base)):
-            raise TypeError(f"task {task!r} needs a {type(base).__name__}, got "
-                            f"{type(saved).__name__}")
-        return saved
-    names = fields(base)
-    return replace_config(base, **{k: v for k, v in dict(saved).items() if k in names})
-
-
-def config_from_dict(task: str, d: dict) -> TaskConfig:
-    """The task's config class filled from a JSON dict (e.g. a policy export's settings)."""
-    return from_dict(type(default_config(task)), d)

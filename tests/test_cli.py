@@ -207,7 +207,8 @@ def test_config_json_lists_become_tuples_and_validate():
     d = TrainConfig().to_dict()
     assert d["hidden"] == [256, 256, 256]
     assert TrainConfig.from_dict({**d, "future_field": 1}) == TrainConfig()
-    env = settings.config_from_dict("push", schema.to_dict(settings.default_config("push")))
+    push = settings.default_config("push")
+    env = schema.from_dict(type(push), schema.to_dict(push))
     assert env == settings.default_config("push")
     with pytest.raises(schema.ConfigError, match="polyak must be <= 1.0"):
         TrainConfig.from_dict({**d, "polyak": 1.5})

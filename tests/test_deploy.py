@@ -354,8 +354,10 @@ def test_robot_side_imports_without_jax(exported, tmp_path, mode):
     r = subprocess.run([sys.executable, str(script), exported["single"][2], mode],
                        capture_output=True, text=True, timeout=120, cwd=str(tmp_path), env=env)
     assert r.returncode == 0, r.stderr
-    files = sorted(f[:-3] for f in os.listdir(os.path.join(ROOT, "daddpg_jax", "deploy"))
-                   if f.endswith(".py") and f != "__init__.py")
+    folder = os.path.join(ROOT, "daddpg_jax", "deploy")
+    files = sorted(f[:-3] if f.endswith(".py") else f for f in os.listdir(folder)
+                   if (f.endswith(".py") and f != "__init__.py")
+                   or os.path.isfile(os.path.join(folder, f, "__init__.py")))
     assert f"OK {mode} {','.join('daddpg_jax.deploy.' + f for f in files)} (8,)" in r.stdout
 
 
@@ -364,7 +366,8 @@ def test_the_physics_version_is_recorded_and_an_older_run_acts_with_its_own(tmp_
     policy file of an older version is simulated with that version (an env override), silently;
     simulating it with another version that acts unlike it prints one warning line, reach none
     (~0 s)."""
-    from mjx_envs.settings import PHYSICS_VERSION, physics_version_note
+    from mjx_envs.model import physics_version_note
+    from mjx_envs.settings import PHYSICS_VERSION
 
     run = tmp_path / "run"
     ckpt.save_config(str(run), tiny_config("daddpg"), env_overrides={})

@@ -15,6 +15,7 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
+import mjx_envs  # noqa: E402
 import mjx_envs.gym_env as ge  # noqa: E402
 from mjx_envs.numpy_env import NumpyDualArmEnv  # noqa: E402
 
@@ -86,7 +87,7 @@ def test_success_reward_zero_and_seeding():
 
 
 def test_registered_ids_and_overrides():
-    ids = ge.register_envs()
+    ids = mjx_envs.register_gymnasium_envs()
     assert ids == ["DualUR3Reach-v0", "DualUR3Push-v0", "DualUR3Pickup-v0", "DualUR3Pot-v0",
                    "DualUR3ReachDense-v0", "DualUR3PushDense-v0", "DualUR3PickupDense-v0",
                    "DualUR3PotDense-v0"]

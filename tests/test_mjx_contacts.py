@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_envs import settings
+from mjx_envs import model
 from mjx_envs.physics import backends, mjx_contacts
 
 
@@ -30,11 +30,11 @@ def test_unique_points_drops_only_repeats_of_an_earlier_point_of_the_same_pair()
 def test_import_mjx_installs_the_unique_points_collider():
     """Idempotent: a second install keeps one wrapper (~2 s: imports MJX)."""
     backends.import_mjx()
-    assert mjx_contacts.installed()
     from mujoco.mjx._src import collision_driver
     from mujoco.mjx._src.types import GeomType
 
     box_box = collision_driver._COLLISION_FUNC[(GeomType.BOX, GeomType.BOX)]
+    assert box_box.__module__ == mjx_contacts.__name__   # the wrapper of `install`
     mjx_contacts.install()
     assert collision_driver._COLLISION_FUNC[(GeomType.BOX, GeomType.BOX)] is box_box
     assert box_box.ncon == 4
@@ -42,7 +42,7 @@ def test_import_mjx_installs_the_unique_points_collider():
 
 def _edge_on_box(unique: bool) -> mujoco.MjModel:
     """A 4 cm cube tilted 0.2 rad about x, one edge 1 mm into a fixed box below it."""
-    numeric = (f'<custom><numeric name="{settings.MJX_UNIQUE_CONTACTS}" data="1"/></custom>'
+    numeric = (f'<custom><numeric name="{model.MJX_UNIQUE_CONTACTS}" data="1"/></custom>'
                if unique else "")
     z = 0.02 * (np.cos(0.2) + np.sin(0.2)) - 0.001
     return mujoco.MjModel.from_xml_string(f"""

@@ -1,4 +1,4 @@
-"""Physics versions: the current scenes and version 1's (`mjx_envs.settings.PHYSICS_V1`,
+"""Physics versions: the current scenes and version 1's (`mjx_envs.model.PHYSICS_V1`,
 applied by `mjx_envs.model.load_model`), so that older runs and policy files act with the
 physics they were trained on. tests/data/physics_v1.npz holds, per scene, every model array in
 which version 1's MJCF files (git 5157332^, assets/) differed from today's, compiled by MuJoCo:
@@ -14,7 +14,7 @@ import pytest
 import mjx_envs
 from daddpg_jax.cli import evaluate as evaluate_cli
 from mjx_envs import settings
-from mjx_envs.model import load_model
+from mjx_envs.model import MJX_UNIQUE_CONTACTS, PHYSICS_V1, load_model
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
 
@@ -65,12 +65,12 @@ NUMERIC_ARRAYS = {"numeric_adr", "numeric_size", "numeric_data", "name_numericad
 
 @pytest.mark.parametrize("scene", SCENES)
 def test_version_2_is_today_s_scene_without_version_3_s_changes(scene):
-    """Version 3 adds `settings.MJX_UNIQUE_CONTACTS` = 1 (the C engine ignores it) and softens
+    """Version 3 adds `MJX_UNIQUE_CONTACTS` = 1 (the C engine ignores it) and softens
     pot's four finger-handle pairs; version 2 as built here lacks the numeric and has their old
     solimp: every other array is equal (~0.2 s)."""
     v2, v3 = load_model(scene, physics_version=2), load_model(scene)
     assert v2.nnumeric == 0 and v3.nnumeric == 1
-    assert v3.numeric(settings.MJX_UNIQUE_CONTACTS).data.tolist() == [1.0]
+    assert v3.numeric(MJX_UNIQUE_CONTACTS).data.tolist() == [1.0]
     old, new = _arrays(v2), _arrays(v3)
     assert set(old) == set(new)
     handles = [i for i in range(v3.npair) if "pot_handle" in v3.geom(int(v3.pair_geom2[i])).name]
@@ -93,7 +93,7 @@ def _names(m, addresses) -> list[str]:
 
 def test_version_1_differs_where_the_record_says():
     """The finger pairs' margin and the blocking pairs' friction of version 1 (~0.2 s)."""
-    v1 = settings.PHYSICS_V1
+    v1 = PHYSICS_V1
     m = load_model("scene_pickup.xml", physics_version=1)
     names = [(m.geom(int(a)).name, m.geom(int(b)).name) for a, b in
              zip(m.pair_geom1, m.pair_geom2, strict=True)]
@@ -108,7 +108,7 @@ def test_version_1_differs_where_the_record_says():
 def test_envs_build_the_version_they_are_given():
     """The JAX env (C backend, no compile) and the NumPy simulator take ``physics_version``
     (~1 s)."""
-    v1 = np.asarray(settings.PHYSICS_V1["finger_size"])
+    v1 = np.asarray(PHYSICS_V1["finger_size"])
     env = mjx_envs.make("push", physics="c", physics_version=1)
     sim = NumpyDualArmEnv(settings.task_config("push", physics_version=1), task="push")
     now = NumpyDualArmEnv(settings.default_config("push"), task="push")

@@ -10,7 +10,7 @@ import pytest
 
 from daddpg_jax.analysis import plotting
 from daddpg_jax.cli import plot as plot_cli
-from daddpg_jax.running.runner import METRIC_COLUMNS
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
 from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -11,7 +11,8 @@ import pytest
 from daddpg_jax.analysis.plotting import plot_learning_curve
 from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running.runner import METRIC_COLUMNS, NonFiniteLoss, RunDirError, train
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
+from daddpg_jax.running.runner import NonFiniteLoss, RunDirError, train
 from tests import conftest, toy_env
 from tests.conftest import T, call_main, run_options
 

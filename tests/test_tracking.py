@@ -18,8 +18,9 @@ import pytest
 from daddpg_jax.analysis import evaluation
 from daddpg_jax.cli import train as train_cli
 from daddpg_jax.running import runner, tracking
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
 from daddpg_jax.running.progress import Progress, epoch_line
-from daddpg_jax.running.runner import METRIC_COLUMNS, train
+from daddpg_jax.running.runner import train
 from tests import conftest, toy_env
 from tests.conftest import T, run_options
 

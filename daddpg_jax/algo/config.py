@@ -16,8 +16,9 @@ import os
 from daddpg_jax.algo.variants import ALGOS
 from daddpg_jax.algo.variants import get as get_variant
 from mjx_envs import registry
+from mjx_envs.registry import default_config
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
-from mjx_envs.settings import DEFAULT_TASK, PHYSICS, default_config  # noqa: F401  (PHYSICS re-exported)
+from mjx_envs.settings import DEFAULT_TASK, PHYSICS  # noqa: F401  (PHYSICS re-exported)
 
 HER_MODES = ("future", "final", "none")
 OTHER_ACTIONS = ("buffer", "policy")
@@ -237,7 +238,7 @@ def task_presets(task: str) -> dict:
     """The task's preset values (its module's `mjx_envs.registry.Task`): ``cpu`` (n_cycles,
     n_epochs, other TrainConfig fields), ``accelerator`` (epoch_env_steps, n_epochs) and ``env``
     (env overrides a new run trains with unless --env says otherwise; test episodes always use
-    the standard task, mjx_envs.settings.test_overrides). ConfigError for an unknown task."""
+    the standard task, mjx_envs.registry.test_overrides). ConfigError for an unknown task."""
     try:
         t = registry.get(task)
     except ValueError as e:

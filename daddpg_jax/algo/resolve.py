@@ -21,7 +21,7 @@ from daddpg_jax.algo.config import (
     robust_env,
 )
 from daddpg_jax.algo.variants import ALGOS, VARIANTS
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 from mjx_envs.schema import ConfigError
 
 FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
@@ -29,7 +29,7 @@ FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
 
 FLAGS = (
     # the training config (resolve_config)
-    ("--task", dict(choices=lambda device: settings.TASKS, default=None,
+    ("--task", dict(choices=lambda device: registry.TASKS, default=None,
                     help="task to train (default reach; taken from config.json with --resume "
                          "or --config)")),
     ("--task-module", dict(default=None, metavar="MODULE",
@@ -141,9 +141,9 @@ def check_flags(args) -> None:
 def field_help(device: str) -> str:
     """The field listing of --help: every training field with its value for each task at the
     default num_envs on `device`, and every env field with each task's value."""
-    tasks = settings.TASKS
+    tasks = registry.TASKS
     cfgs = {t: build_config(t, device=device) for t in tasks}
-    envs = {t: settings.task_config(t, **preset_env(t)) for t in tasks}
+    envs = {t: registry.task_config(t, **preset_env(t)) for t in tasks}
     head = " | ".join(tasks)
     out = [f"training fields for --set KEY=VALUE (value for {head} at the default --num-envs "
            f"on {device}; meaning):"]
@@ -195,9 +195,9 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
     if args.robust:   # a resume refused --robust above
         env_over.update(robust_env(cfg.task))
     cfg = cfg.replace(**_field_overrides(args))
-    env_cls = type(settings.default_config(cfg.task))
+    env_cls = type(registry.default_config(cfg.task))
     env_over.update(schema.parse_overrides(env_cls, args.env, "--env"))
-    settings.task_config(cfg.task, **env_over)   # validates the env fields together
+    registry.task_config(cfg.task, **env_over)   # validates the env fields together
     if cfg.n_demos > 0:
         _check_demos(cfg.task)
     return cfg, env_over

@@ -128,7 +128,7 @@ def make_train_fns(env, cfg: TrainConfig, hooks: Any = None,
     function of the env's observation dict -> joint action [..., 8]; default: the task's
     scripted controller (mjx_envs.tasks.scripted) at the env's max_delta.
     eval_env: the env of `evaluate` (default: `env`); e.g. the task without its training-only
-    options (mjx_envs.settings.test_overrides), so that test episodes stay the standard task.
+    options (mjx_envs.registry.test_overrides), so that test episodes stay the standard task.
     eval_chunk: play the test episodes `evaluate` runs in batches of this many (one device;
     e.g. `mjx_envs.settings.MJX_CPU_CHUNK` for MJX on a CPU); the metrics do not depend on it.
     """

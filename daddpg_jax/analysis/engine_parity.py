@@ -64,11 +64,11 @@ from daddpg_jax.analysis.parity_candidates import (  # noqa: F401
     candidate,
 )
 from mjx_envs import observation as obs_lib
-from mjx_envs import settings
+from mjx_envs import registry
 from mjx_envs.physics import backends
 from mjx_envs.tasks import scripted
 
-TASKS = tuple(settings.OBJECTS)   # the tasks with an object
+TASKS = tuple(registry.OBJECTS)   # the tasks with an object
 SHORT_STEPS = 10
 """open-loop control steps of the divergence measure (tests/test_env_contact.py: T_SHORT)"""
 TEST_KEY, TEST_EPISODES = 7, 2
@@ -331,7 +331,7 @@ def grasp_states(task: str, episodes: int = 8, seed: int = 0) -> dict:
 
 
 def _object_dofs(m: mujoco.MjModel, task: str) -> slice:
-    j = m.joint(settings.OBJECTS[task][0]).id
+    j = m.joint(registry.OBJECTS[task][0]).id
     a = int(m.jnt_dofadr[j])
     return slice(a, a + 6)
 

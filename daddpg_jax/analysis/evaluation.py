@@ -9,7 +9,7 @@ contact, final goal distances, and an optional video.
 
 The env is rebuilt from the run's ``config.json`` (task, physics, env overrides; the
 training-only task options, ``mjx_envs.settings.TRAINING_ONLY_FIELDS``, are switched off with
-``mjx_envs.settings.test_overrides``, as in the trainer's test episodes), the agents and
+``mjx_envs.registry.test_overrides``, as in the trainer's test episodes), the agents and
 normalizers are restored from ``RUN_DIR/checkpoints/{step}`` (``best=True``: the checkpoint with
 the best test success, ``RUN_DIR/checkpoints_best/``) into a template made by
 ``make_train_fns(...).init()`` (with a tiny replay buffer: the buffer is not needed to act), and
@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from mjx_envs import observation as obs_lib
-from mjx_envs import settings
+from mjx_envs import registry, settings
 from mjx_envs.settings import MJX_CPU_CHUNK  # noqa: F401 (part of this module's interface)
 
 # MuJoCo picks its OpenGL backend when it is first imported: headless EGL unless told otherwise
@@ -100,8 +100,8 @@ class Policy:
 
 def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
     """A run's env overrides for test (evaluation) episodes: the standard task, i.e. the
-    training-only task options switched off (``mjx_envs.settings.test_overrides``)."""
-    return {**(env_overrides or {}), **settings.test_overrides(task)}
+    training-only task options switched off (``mjx_envs.registry.test_overrides``)."""
+    return {**(env_overrides or {}), **registry.test_overrides(task)}
 
 
 

@@ -17,7 +17,7 @@ import json
 import os
 
 from daddpg_jax.analysis import evaluation
-from mjx_envs import perturb, schema, settings
+from mjx_envs import perturb, registry, schema, settings
 
 COLUMNS = ("success_rate", "success_ci95_low", "success_ci95_high", "arm_contact_rate",
            "final_distance_left", "final_distance_right", "physics_fault_rate", "episodes",
@@ -49,7 +49,7 @@ ERROR_BARS = "error bars: 95% Wilson interval of the success rate"
 def parse_grid(task: str, items: list[str]) -> dict[str, list]:
     """``KEY=V1,V2,...`` items -> {field: [values]} (each value checked against the task's
     schema); raises schema.ConfigError."""
-    cls = type(settings.default_config(task))
+    cls = type(registry.default_config(task))
     grid = {}
     for item in items:
         key, sep, values = item.partition("=")
@@ -57,7 +57,7 @@ def parse_grid(task: str, items: list[str]) -> dict[str, list]:
         if not sep or not values.strip():
             raise schema.ConfigError(f"--perturb {item!r}: expected KEY=V1,V2,...")
         names = [k for k in (*perturb.FIELDS, *settings.RANDOMIZATION_FIELDS)
-                 if hasattr(settings.default_config(task), k)]
+                 if hasattr(registry.default_config(task), k)]
         if key not in names:
             raise schema.ConfigError(f"--perturb: {key!r} is not a perturbation of {task}; "
                                      f"choose from {', '.join(names)}")

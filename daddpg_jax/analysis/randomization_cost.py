@@ -54,13 +54,13 @@ def episode_rate(task: str, physics: str, n: int, over: dict, repeats: int) -> d
 def main(argv=None):
     p = argparse.ArgumentParser(prog="randomization_cost.py",
                                 description=__doc__.split("\n\n")[0])
-    p.add_argument("--task", default="pickup", choices=mjx_envs.settings.TASKS)
+    p.add_argument("--task", default="pickup", choices=mjx_envs.registry.TASKS)
     p.add_argument("--physics", default="c", choices=mjx_envs.settings.ENGINES)
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 256])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", default=None, help="write the rows as JSON here")
     args = p.parse_args(argv)
-    fields = mjx_envs.settings.default_config(args.task).__dataclass_fields__
+    fields = mjx_envs.registry.default_config(args.task).__dataclass_fields__
     on = {k: v for k, v in RANDOMIZED.items() if k in fields}
     rows = []
     for n in args.sizes:

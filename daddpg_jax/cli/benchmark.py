@@ -27,7 +27,8 @@ import time
 
 from daddpg_jax.algo.config import DEVICES, TrainConfig, current_device, preset
 from mjx_envs import schema, settings
-from mjx_envs.settings import DEFAULT_TASK, ENGINES, TASKS
+from mjx_envs.registry import TASKS
+from mjx_envs.settings import DEFAULT_TASK, ENGINES
 
 CPU_SIZES = [1, 64, 256]
 CPU_TRAIN_SIZES = [2, 16]

@@ -39,7 +39,8 @@ import os
 import sys
 
 from daddpg_jax.tools.sb3_compare import DEFAULT_METHODS, METHODS, compare, run_worker
-from mjx_envs.settings import DEFAULT_TASK, TASKS
+from mjx_envs.registry import TASKS
+from mjx_envs.settings import DEFAULT_TASK
 
 
 def build_parser():

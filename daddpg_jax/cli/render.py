@@ -8,7 +8,8 @@ import argparse
 import os
 
 import mjx_envs
-from mjx_envs.settings import DEFAULT_TASK, TASKS
+from mjx_envs.registry import TASKS
+from mjx_envs.settings import DEFAULT_TASK
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 

@@ -22,8 +22,8 @@ import os
 import sys
 
 from daddpg_jax.algo.config import TrainConfig
-from mjx_envs import schema, settings
-from mjx_envs.settings import TASKS
+from mjx_envs import registry, schema
+from mjx_envs.registry import TASKS
 
 
 def main(argv=None) -> int:
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
         p.error("--first-seed must be >= 0")
     try:
         overrides = schema.parse_overrides(TrainConfig, args.set, "--set")
-        env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
+        env_over = schema.parse_overrides(type(registry.default_config(args.task)), args.env,
                                           "--env")
     except schema.ConfigError as e:
         p.error(str(e))

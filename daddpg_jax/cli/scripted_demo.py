@@ -22,7 +22,7 @@ import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
 
-from mjx_envs import registry, schema, settings  # noqa: E402  (JAX-free; after MUJOCO_GL)
+from mjx_envs import registry, schema  # noqa: E402  (JAX-free; after MUJOCO_GL)
 
 
 def main(argv=None) -> int:
@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     if args.episodes < 1:
         p.error("--episodes must be >= 1")
     try:
-        env_over = schema.parse_overrides(type(settings.default_config(args.task)), args.env,
+        env_over = schema.parse_overrides(type(registry.default_config(args.task)), args.env,
                                           "--env")
     except schema.ConfigError as e:
         p.error(str(e))

@@ -30,7 +30,7 @@ import sys
 from daddpg_jax.algo.config import guess_device
 from daddpg_jax.algo.resolve import add_flags, check_flags, field_help, resolve_config
 from daddpg_jax.running import distributed, tracking
-from mjx_envs import registry, settings
+from mjx_envs import registry
 from mjx_envs.schema import ConfigError
 
 
@@ -112,7 +112,7 @@ def _run(args, layout, primary: bool, cfg, env_over, run_dir, loggers) -> int:
 
     if primary:
         print(progress.header(cfg, run_dir), flush=True)
-    T = settings.task_config(cfg.task, **env_over).episode_length
+    T = registry.task_config(cfg.task, **env_over).episode_length
     # every process of a multi-process job compiles the same per-cycle callback
     bar = progress.Progress(cfg, T, show=primary, live=not args.no_progress,
                             same_program=layout is not None)

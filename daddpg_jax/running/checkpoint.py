@@ -40,7 +40,8 @@ from flax import serialization
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.sharding import on_mesh
 from daddpg_jax.running.host import host_info
-from mjx_envs.settings import PHYSICS_VERSION, physics_version_note, recorded_physics_version
+from mjx_envs.model import physics_version_note
+from mjx_envs.settings import PHYSICS_VERSION, recorded_physics_version
 
 RUN_FILES = ("config.json", "metrics.csv", "learning_curve.png", "checkpoints",
              "checkpoints_best", "tensorboard", "videos", "wandb")
@@ -585,7 +586,7 @@ def physics_note(run_dir, payload, task: str, simulated: int | None = None,
                  engine: str | None = None) -> None:
     """Prints one warning line (once per run and process) when a run of `task` is simulated
     with a physics version (`simulated`, default its own) that acts unlike the one it was
-    trained on, on `engine` when named (`mjx_envs.settings.physics_version_note`)."""
+    trained on, on `engine` when named (`mjx_envs.model.physics_version_note`)."""
     recorded = payload.get("physics_version")
     own = (payload.get("env_overrides") or {}).get("physics_version", recorded)
     note = physics_version_note(recorded, task, own if simulated is None else simulated, engine)

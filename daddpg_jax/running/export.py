@@ -29,7 +29,7 @@ key                         value
 arm 0 = left, each with a 4-d action slot) or 1 (one actor, 8-d output). The actor is
 ``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
 ``daddpg_jax.algo.networks.actor_inputs``. The reader (``daddpg_jax.deploy.NumpyPolicy``)
-fills env settings an older export lacks from ``mjx_envs.settings.default_config(task)``.
+fills env settings an older export lacks from ``mjx_envs.registry.default_config(task)``.
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import make_env, restore_readable
 from mjx_envs import observation as obs_lib
 from mjx_envs import schema
+from mjx_envs.registry import test_overrides
 from mjx_envs.settings import PHYSICS_VERSION
 
 
@@ -185,8 +186,6 @@ def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str
         raise ExportError(str(e)) from None
     # the standard task (training-only options such as grasped-state starts off): the env the
     # policy is deployed to, and nothing recorded for training is rebuilt
-    from mjx_envs.settings import test_overrides
-
     env = make_env(cfg, {**(payload.get("env_overrides") or {}), **test_overrides(cfg.task)})
     fns = make_train_fns(env, cfg)
     # abstract template: shapes only, so the (large) replay buffer is never allocated

@@ -1,9 +1,9 @@
 """What a training run has written to its directory, and how it resumes from it: the
-metrics.csv rows (`METRIC_COLUMNS`), the end of an epoch (`RunLog.commit`: CSV row, checkpoint,
-best checkpoint), the checks and lock of a run directory before a run, and the resume from the
-newest readable checkpoint (`resume`, `restore_readable`). The loop of epochs that calls these
-is ``daddpg_jax.running.runner``; the layout of a run directory and its crash safety are in
-that module's docstring.
+metrics.csv rows (columns: `daddpg_jax.running.metric_columns`), the end of an epoch
+(`RunLog.commit`: CSV row, checkpoint, best checkpoint), the checks and lock of a run directory
+before a run, and the resume from the newest readable checkpoint (`resume`, `restore_readable`).
+The loop of epochs that calls these is ``daddpg_jax.running.runner``; the layout of a run
+directory and its crash safety are in that module's docstring.
 """
 
 from __future__ import annotations
@@ -18,26 +18,7 @@ from dataclasses import dataclass
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import distributed as dist
-
-METRIC_COLUMNS = (
-    "epoch", "env_steps", "updates", "wall_time", "test_success_rate", "test_arm_contact_rate",
-    "test_final_distance_left", "test_final_distance_right", "train_success_rate",
-    "train_arm_contact_rate", "critic_loss", "actor_loss", "mean_q", "env_steps_per_s",
-    "updates_per_s", "bc_loss", "q_filter_pass", "rollout_time", "update_time", "eval_time",
-    "train_physics_fault_rate", "test_physics_fault_rate",
-)
-"""Columns of metrics.csv. bc_loss and q_filter_pass (behaviour-cloning term and Q-filter pass
-rate, mean over the epoch's updates and the agents) are NaN without demonstrations.
-rollout_time, update_time and eval_time split the epoch's wall seconds, measured on the host:
-rollout_time sums, over the epoch's cycles, the time from the previous cycle's end to the
-cycle's rollout done (envs and actors); update_time the time from there to its updates done
-(buffer insert, normalizer update, gradient updates). Both come from host calls ordered inside
-the compiled cycle (``algo.train.StageClock``; on several devices, device 0's); the first
-epoch's rollout_time holds the compilation. eval_time: the evaluation after the epoch.
-train_/test_physics_fault_rate: the fraction of the epoch's training / test episodes with a
-step whose ``metrics["physics_ok"]`` is 0 (the engine froze or diverged; NaN for an env that
-does not report it). CSVs written before a column existed lack it and are rewritten with it
-(blank) on --resume."""
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
 
 
 def warn(msg: str) -> None:

@@ -6,7 +6,7 @@
 RUN_DIR layout::
 
     config.json          TrainConfig, env overrides, package versions, device, git revision
-    metrics.csv          one row per epoch (columns: run_record.METRIC_COLUMNS)
+    metrics.csv          one row per epoch (columns: metric_columns.METRIC_COLUMNS)
     learning_curve.png   test success vs env steps
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
     checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
@@ -53,14 +53,12 @@ from daddpg_jax.running.run_record import (
     success_of,
     warn,
 )
-from mjx_envs import settings
+from mjx_envs import registry
 from mjx_envs.physics.backends import default_chunk
 from mjx_envs.schema import ConfigError
 
-# defined in run_record, imported from here by the CLI, the analysis tools and the tests
-METRIC_COLUMNS = run_record.METRIC_COLUMNS
+# defined in run_record, imported from here by the CLI and the analysis tools
 restore_readable = run_record.restore_readable
-_write_rows = run_record.write_rows
 
 PHYSICS_FAULT_WARN = 0.01
 """an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
@@ -123,12 +121,12 @@ def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
 
 def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
     """The env of test episodes: the task without its training-only options
-    (mjx_envs.settings.test_overrides: goals at rest height, grasped-state starts), so that
+    (mjx_envs.registry.test_overrides: goals at rest height, grasped-state starts), so that
     test success always measures the standard task. None when the overrides switch none of
     them on (the training env then serves both)."""
     env_overrides = dict(env_overrides or {})
-    test = settings.test_overrides(cfg.task)
-    train_cfg = settings.task_config(cfg.task, **env_overrides)
+    test = registry.test_overrides(cfg.task)
+    train_cfg = registry.task_config(cfg.task, **env_overrides)
     if all(getattr(train_cfg, k) == v for k, v in test.items()):
         return None
     return make_env(cfg, {**env_overrides, **test})

@@ -2,11 +2,11 @@
 
 The runner (``daddpg_jax.running.runner.train``) gives each logger the run's config once
 (``start``), then every metrics.csv row as it is written (``log_row``) and, with
-``--video-every``, the evaluation videos (``log_video``). Every column of
-``runner.METRIC_COLUMNS`` is logged against ``env_steps`` under the tag ``tag(column)``
-(``test/success_rate``, ``losses/critic_loss``, ``time/rollout_time``, ...); a value that is
-NaN (``bc_loss`` and ``q_filter_pass`` without demonstrations, the stage times on several
-devices, a fault rate an env does not report) is left out.
+``--video-every``, the evaluation videos (``log_video``). Every column of ``METRIC_COLUMNS``
+(`daddpg_jax.running.metric_columns`) is logged against ``env_steps`` under the tag
+``tag(column)`` (``test/success_rate``, ``losses/critic_loss``, ``time/rollout_time``, ...); a
+value that is NaN (``bc_loss`` and ``q_filter_pass`` without demonstrations, the stage times on
+several devices, a fault rate an env does not report) is left out.
 
     tensorboard --logdir runs/            # RUN_DIR/tensorboard/ of every run
 
@@ -26,6 +26,7 @@ import json
 import math
 import os
 
+from daddpg_jax.running.metric_columns import METRIC_COLUMNS
 from mjx_envs.schema import ConfigError
 
 TB_DIR = "tensorboard"
@@ -61,9 +62,6 @@ def _value(v) -> float:
 def row_scalars(row: dict) -> dict[str, float]:
     """{tag: value} of a metrics.csv row: every column of METRIC_COLUMNS but env_steps (the
     x axis), except those that are NaN in this row (e.g. bc_loss without demonstrations)."""
-    # lazy: runner imports this module, and JAX (tracking stays JAX-free)
-    from daddpg_jax.running.runner import METRIC_COLUMNS
-
     values = {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS if c != "env_steps"}
     return {k: v for k, v in values.items() if not math.isnan(v)}
 

@@ -42,7 +42,7 @@ import sys
 import threading
 import time
 
-from mjx_envs.settings import TASKS
+from mjx_envs.registry import TASKS
 
 JSON_NAME = "gpu_check.json"
 MD_NAME = "gpu_check.md"
@@ -417,7 +417,7 @@ def child_main(args) -> int:
     # lazy: the stages import JAX; the parent process that schedules them stays JAX-free
     from daddpg_jax.tools import gpu_check_stages
 
-    return gpu_check_stages.run(args, PROCESS_START)
+    return gpu_check_stages.run(args, PROCESS_START, MIN_STAGE_S)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.analysis.benchmark import memory
 from daddpg_jax.running.levels import reaches
 from daddpg_jax.running.runner import RunOptions, check_physics_backend, train
-from daddpg_jax.tools.gpu_check import MIN_STAGE_S
 
 SMOKE_TRAIN = dict(hidden=(32, 32), n_batches=4, batch_size=32, n_test_episodes=8, physics="c")
 """tiny trainer settings of --smoke (as tests/conftest.py's TINY)"""
@@ -79,19 +78,21 @@ def _one_line(e: BaseException, width: int = 300) -> str:
     return text if len(text) <= width else text[:width - 3] + "..."
 
 
-def run(args, process_start: float) -> int:
+def run(args, process_start: float, min_stage_s: float) -> int:
     """Runs the stage args._child, appending its records to args._records; the exit code.
-    process_start: about when the process started (before JAX was imported)."""
+    process_start: about when the process started (before JAX was imported); min_stage_s: a
+    point or epoch with less time than this left before args._deadline is not started
+    (`gpu_check.MIN_STAGE_S`)."""
     rec = Recorder(args._records)
     try:
         rec("device", **device_record())
         stage = args._child
         if stage == "env":
-            stage_env(args, rec)
+            stage_env(args, rec, min_stage_s)
         elif stage == "train_epoch":
             stage_train(args, rec)
         else:
-            stage_learn(args, rec, stage.removeprefix("learn_"), process_start)
+            stage_learn(args, rec, stage.removeprefix("learn_"), process_start, min_stage_s)
         rec("done")
         return 0
     except Exception as e:  # noqa: BLE001 (recorded in the report; the next stage goes on)
@@ -109,7 +110,7 @@ def _accel_device() -> str:
     return "gpu" if dev == "cpu" else dev
 
 
-def stage_env(args, rec: Recorder) -> None:
+def stage_env(args, rec: Recorder, min_stage_s: float) -> None:
     """Stage 1: every (size, task) point; a failed point is recorded and the next one runs."""
     points = [(n, t) for n in args.env_sizes for t in args.env_tasks]
     plan = {f"{t}/{n}": dict(task=t, physics=args.env_physics, num_envs=n) for n, t in points}
@@ -117,7 +118,7 @@ def stage_env(args, rec: Recorder) -> None:
     envs = {}
     for n, task in points:
         key, base = f"{task}/{n}", plan[f"{task}/{n}"]
-        if time.time() > args._deadline - MIN_STAGE_S:
+        if time.time() > args._deadline - min_stage_s:
             rec.row(key, dict(base, skipped="stage time cap"))
             continue
         try:
@@ -248,7 +249,8 @@ class _Stop(Exception):
     pass
 
 
-def stage_learn(args, rec: Recorder, task: str, process_start: float) -> None:
+def stage_learn(args, rec: Recorder, task: str, process_start: float,
+                min_stage_s: float) -> None:
     """Stage 3 for one task: runner.train until the target or the stage's deadline; a record
     after every epoch (curve, time and env steps to the target, best success)."""
     t_process = process_start
@@ -277,7 +279,7 @@ def stage_learn(args, rec: Recorder, task: str, process_start: float) -> None:
               f"success {s:.2f}", flush=True)
         if row["reached"]:
             raise _Stop
-        if time.time() >= args._deadline - MIN_STAGE_S:
+        if time.time() >= args._deadline - min_stage_s:
             row["note"] = "stopped at the stage's time cap"
             raise _Stop
 

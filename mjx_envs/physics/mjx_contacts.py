@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from mjx_envs.settings import MJX_UNIQUE_CONTACTS as NUMERIC
+from mjx_envs.model import MJX_UNIQUE_CONTACTS as NUMERIC
 
 TOLERANCE = 1e-6
 """two points of one pair closer than this (metres) are one point; distinct manifold points
@@ -57,7 +57,6 @@ def _unique(collide):
         return dist, pos, frame
 
     collide_unique.ncon = collide.ncon
-    collide_unique.repeats_dropped = True
     return collide_unique
 
 
@@ -73,11 +72,3 @@ def install() -> None:
         if collide in (collision_convex.box_box, collision_convex.convex_convex):
             table[types] = _unique(collide)
 
-
-def installed() -> bool:
-    """Whether `install` has wrapped MJX's box-box collider."""
-    from mujoco.mjx._src import collision_driver  # lazy: as in `install`
-    from mujoco.mjx._src.types import GeomType  # lazy: as in `install`
-
-    box_box = collision_driver._COLLISION_FUNC[(GeomType.BOX, GeomType.BOX)]
-    return getattr(box_box, "repeats_dropped", False)

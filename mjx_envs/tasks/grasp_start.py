@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjx_envs import settings
+from mjx_envs.schema import replace_config
 from mjx_envs.tasks import scripted
 
 GRASP_SEED = 20_240
@@ -76,9 +76,8 @@ def grasp_states(env_cls, config) -> GraspStates:
     per process. May be called while a reset is being traced: the recording runs eagerly
     (``jax.ensure_compile_time_eval``), outside the traced program."""
     task = env_cls.task_name
-    off = {name: type(getattr(config, name))(0) for name in settings.TRAINING_ONLY_FIELDS
-           if hasattr(config, name)}   # nominal: no perturbation either
-    base = settings.replace_config(config, **off)
+    # nominal: no perturbation either
+    base = replace_config(config, **config.training_only_off())
     key = (task, base)
     if key not in _CACHE:
         with jax.ensure_compile_time_eval():

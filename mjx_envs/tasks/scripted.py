@@ -120,11 +120,6 @@ def grasp_policy(obs, max_delta: float = 0.05, arms=(True, True)):
     return to_action(delta, finger, max_delta)
 
 
-def one_arm_grasp_policy(obs, max_delta: float = 0.05):
-    """Only the left arm grasps its end and carries it to its goal."""
-    return grasp_policy(obs, max_delta, arms=(True, False))
-
-
 def get_policy(task: str):
     """The scripted controller ``(obs, max_delta) -> action`` of a registered task."""
     policy = registry.get(task).scripted
