@@ -14,6 +14,7 @@ import re
 import shutil
 import socket
 import threading
+import tomllib
 
 import numpy as np
 import pytest
@@ -350,11 +351,16 @@ def test_robot_client_arms_sim_gives_the_simulator_s_results(policy, tmp_path, c
     service; 20 episodes, seed 0, sim.toml) against the loop on the simulator stepped directly
     with the same goals: the same success, final distances, clearance interventions and
     smallest arm gap (the first 20 episodes of docs/DEPLOYMENT.md's sim rows), no target
-    refused."""
+    refused. The limits are sim.toml's with a 2 s deadline (allowed unpaced), so that a loaded
+    machine does not turn periods into holds."""
     direct = _run(policy, _env(policy), 20)
     out_json = tmp_path / "out.json"
+    slow = tmp_path / "sim_slow.json"
+    with open(SIM_LIMITS, "rb") as f:
+        slow.write_text(json.dumps({**tomllib.load(f), "deadline": 2.0,
+                                    "max_observation_age": 2.0}))
     with PolicyServer(policy, port=0) as srv:
-        code = robot_client.main(["--server", srv.url, "--limits", SIM_LIMITS, "--arms", "sim",
+        code = robot_client.main(["--server", srv.url, "--limits", str(slow), "--arms", "sim",
                                   "--fast", "--episodes", "20", "--seed", "0",
                                   "--json", str(out_json)])
     assert code == 0, capsys.readouterr().err

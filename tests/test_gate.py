@@ -484,3 +484,17 @@ def test_arms_ur_against_a_silent_controller_is_one_line(policy, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 4 and "no RTDE answer on port 30004 within 0.3 s" in err[-1]
     assert time.perf_counter() - t0 < 3.0
+
+
+def test_the_client_refuses_an_unchecked_calibration(policy, tmp_path, capsys, arm_recorder):
+    """~0.3 s: a limits file whose calibration carries no residuals (not written by
+    daddpg-calibrate), or residuals over the thresholds: one line, exit 2, nothing moves."""
+    nominal = {"left": {"base_pos": [0.0, 0.25, 0.40], "base_rotvec": [0.0, 0.0, math.pi]},
+               "right": {"base_pos": [0.0, -0.25, 0.40], "base_rotvec": [0.0, 0.0, math.pi]}}
+    for cal, words in ((nominal, "residuals"),
+                       ({a: {**v, "residuals_mm": [9.0] * 6} for a, v in nominal.items()},
+                        "RMS residual")):
+        lim = _limits_file(tmp_path, calibration=cal)
+        code, cap = _serve_and_run(policy, capsys, "--limits", lim, "--arms", "ur-sim")
+        assert code == 2 and words in cap.err.splitlines()[-1], cap.err
+    assert arm_recorder.commands == 0

@@ -270,9 +270,9 @@ def test_robot_client_runs_the_standard_task(monkeypatch):
 
     monkeypatch.setattr(server, "PolicyClient", FakeClient)
     limits = RobotLimits(control_period=0.04)
-    _, task_cfg, env_settings = robot_session.served_policy("http://x", limits, None, None, None)
-    assert task_cfg == settings.default_config("pickup")
-    assert env_settings["grasp_start_fraction"] == 0.0 and env_settings["dt"] == 0.04
+    _, task_cfg = robot_session.served_policy("http://x", limits, None, None, None)
+    assert task_cfg == settings.default_config("pickup")  # the robot's own, standard task
+    assert task_cfg.grasp_start_fraction == 0.0
 
 
 def test_numpy_env_accepts_the_fields_and_disables_grasp_starts():
