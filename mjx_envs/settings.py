@@ -15,21 +15,10 @@ from __future__ import annotations
 
 import dataclasses
 
-# `mjx_envs.registry` owns the names derived from the tasks; these (and `__getattr__`'s tables)
-# are kept here for the readers of this module: the robot side (daddpg_jax/deploy), the tests and
-# docs/results. The registry reads nothing from this module.
-from mjx_envs import registry
-from mjx_envs.registry import (  # noqa: F401
-    default_config,
-    saved_config,
-    task_config,
-    test_overrides,
-)
 from mjx_envs.schema import (
     ConfigError,
     fields,
     finalize,
-    replace_config,  # noqa: F401  (read here too)
     spec,
 )
 
@@ -141,6 +130,11 @@ class TaskConfig:
                            "lower corner of each arm's goal region (reach)", length=(2, 3))
     goal_high: tuple = spec(((0.34, 0.30, 0.60), (0.34, 0.08, 0.60)),
                             "upper corner of each arm's goal region (reach)", length=(2, 3))
+    robot_limits: tuple = spec((), "the robot's limits applied to every target as the robot "
+                               "client's safety layer applies them (mjx_envs/limit_rules.py; "
+                               "set by daddpg-train --limits FILE): box low [2 x 3], box high "
+                               "[2 x 3], max_step m, min_clearance m, finger_low m, "
+                               "finger_high m (16 numbers); () = off")
 
     def __post_init__(self):
         finalize(self)
@@ -243,10 +237,3 @@ def _check_ordered(cfg, lo: str, hi: str) -> None:
 CONTACT_DEFAULTS = dict(cone="elliptic", timestep=0.005, n_substeps=8, distance_threshold=0.05)
 """Settings shared by the contact tasks (push, pickup, pot; ``TaskConfig(**CONTACT_DEFAULTS,
 ...)`` in a task's module)."""
-
-
-def __getattr__(name: str):
-    """``TASKS``, ``TASK_SETTINGS`` and ``OBJECTS``: `mjx_envs.registry`'s tables."""
-    if name in ("TASKS", "TASK_SETTINGS", "OBJECTS"):
-        return getattr(registry, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -20,7 +20,7 @@ from daddpg_jax.algo.config import (
 )
 from daddpg_jax.cli import train as cli
 from daddpg_jax.running import checkpoint as ckpt
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 
 
 def _help_values(text: str, section: str) -> dict:
@@ -32,7 +32,7 @@ def _help_values(text: str, section: str) -> dict:
         m = re.match(r"  (\w+) \((.*?)\): ", line)
         if m:
             vals = m.group(2).split(" | ")
-            out[m.group(1)] = vals * len(settings.TASKS) if len(vals) == 1 else vals
+            out[m.group(1)] = vals * len(registry.TASKS) if len(vals) == 1 else vals
     return out
 
 
@@ -42,14 +42,14 @@ def test_help_prints_the_values_of_the_configs_actually_built(device):
     train = _help_values(text, "training fields for --set")
     env = _help_values(text, "env fields for --env")
     assert set(train) == set(schema.fields(TrainConfig))
-    assert set(env) == {f for t in settings.TASKS
-                        for f in schema.fields(type(settings.default_config(t)))}
-    assert env["goal_rest_fraction"][settings.TASKS.index("push")] == "-"
-    for i, task in enumerate(settings.TASKS):
+    assert set(env) == {f for t in registry.TASKS
+                        for f in schema.fields(type(registry.default_config(t)))}
+    assert env["goal_rest_fraction"][registry.TASKS.index("push")] == "-"
+    for i, task in enumerate(registry.TASKS):
         cfg = build_config(task, device=device)
         for name, vals in train.items():
             assert vals[i] == schema.describe_value(getattr(cfg, name)), (task, name)
-        ecfg = settings.task_config(task, **preset_env(task))
+        ecfg = registry.task_config(task, **preset_env(task))
         for name, vals in env.items():
             want = schema.describe_value(getattr(ecfg, name)) if hasattr(ecfg, name) else "-"
             assert vals[i] == want, (task, name)
@@ -100,9 +100,9 @@ def test_robust_adds_the_robust_bounds_that_the_task_has(tmp_path):
     # every bound is a training randomization: test episodes stay nominal; the action history
     # is the policy's input: test episodes keep it
     assert set(ROBUST_ENV) <= set(settings.TRAINING_ONLY_FIELDS)
-    assert not set(ROBUST_OBS) & set(settings.test_overrides("pickup"))
-    for task in settings.TASKS:
-        settings.task_config(task, **preset_env(task, robust=True))   # valid everywhere
+    assert not set(ROBUST_OBS) & set(registry.test_overrides("pickup"))
+    for task in registry.TASKS:
+        registry.task_config(task, **preset_env(task, robust=True))   # valid everywhere
     # a recorded config keeps its own env fields and gains the bounds
     run = tmp_path / "old"
     ckpt.save_config(str(run), build_config("push", device="cpu"),
@@ -193,8 +193,8 @@ def test_out_must_be_new_empty_or_forced(tmp_path, capsys):
 
 def test_schema_parse_round_trips_every_field():
     for cls, obj in ((TrainConfig, build_config("push", device="cpu")),
-                     (type(settings.default_config("push")), settings.default_config("push")),
-                     (type(settings.default_config("reach")), settings.default_config("reach"))):
+                     (type(registry.default_config("push")), registry.default_config("push")),
+                     (type(registry.default_config("reach")), registry.default_config("reach"))):
         for name in schema.fields(cls):
             v = getattr(obj, name)
             assert schema.parse(cls, name, schema.describe_value(v)) == v, name
@@ -207,9 +207,9 @@ def test_config_json_lists_become_tuples_and_validate():
     d = TrainConfig().to_dict()
     assert d["hidden"] == [256, 256, 256]
     assert TrainConfig.from_dict({**d, "future_field": 1}) == TrainConfig()
-    push = settings.default_config("push")
+    push = registry.default_config("push")
     env = schema.from_dict(type(push), schema.to_dict(push))
-    assert env == settings.default_config("push")
+    assert env == registry.default_config("push")
     with pytest.raises(schema.ConfigError, match="polyak must be <= 1.0"):
         TrainConfig.from_dict({**d, "polyak": 1.5})
 

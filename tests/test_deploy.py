@@ -24,7 +24,7 @@ from daddpg_jax.deploy.policy import env_settings, task_settings
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.export import ExportError, export_run, export_state
 from mjx_envs import observation as obs_lib
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -205,7 +205,7 @@ def test_policy_reads_its_variant_row(exported, tmp_path):
 def test_export_saves_every_task_setting(exported, env):
     policy = NumpyPolicy.load(exported["daddpg"][2])
     saved = policy.meta["env"]
-    assert set(saved) == set(schema.fields(settings.default_config("reach"))) | {"dt"}
+    assert set(saved) == set(schema.fields(registry.default_config("reach"))) | {"dt"}
     assert saved == {**schema.to_dict(env.config), "dt": pytest.approx(env.dt)}
     assert policy.env == saved and policy.info()["env"] == saved
     assert task_settings("reach", saved) == env.config
@@ -219,7 +219,7 @@ def test_older_export_loads_with_task_defaults(exported, tmp_path):
     old_env = {k: full.meta["env"][k] for k in FORMAT_1_ENV_KEYS}
     old_env["max_delta"] = 0.03  # the run's own value wins over the task default
     old = NumpyPolicy.load(_rewrite(path, tmp_path / "old.npz", env=old_env))
-    defaults = schema.to_dict(settings.default_config("reach"))
+    defaults = schema.to_dict(registry.default_config("reach"))
     assert old.meta["env"] == old_env  # the file's own record is left as it is
     assert old.env == {**defaults, **old_env}
     assert old.env["goal_scale"] == defaults["goal_scale"] and old.env["max_delta"] == 0.03
@@ -239,7 +239,7 @@ def test_older_export_loads_with_task_defaults(exported, tmp_path):
 def test_env_settings_fill_from_task_defaults(exported, tmp_path):
     push = env_settings("push", {"max_delta": 0.03, "dt": 0.04})
     assert push["scene"] == "scene_push.xml" and push["max_delta"] == 0.03
-    assert push["target_radius"] == list(settings.default_config("push").target_radius)
+    assert push["target_radius"] == list(registry.default_config("push").target_radius)
     assert push["dt"] == 0.04  # saved: kept
     assert env_settings("pot", {})["dt"] == pytest.approx(0.005 * 8)
     cfg = task_settings("pickup", {"workspace_low": [[0.1, -0.1, 0.4], [0.1, -0.3, 0.4]]})

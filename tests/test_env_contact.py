@@ -18,7 +18,7 @@ import pytest
 
 import mjx_envs
 from mjx_envs import observation as obs_lib
-from mjx_envs import registry, rules, settings
+from mjx_envs import registry, rules
 from mjx_envs.core import SAMPLER
 from mjx_envs.model import load_model
 from mjx_envs.tasks import scripted
@@ -275,7 +275,7 @@ def test_goal_sampling_ranges():
 
 @functools.cache
 def _task_rules(task):
-    cfg = settings.default_config(task)
+    cfg = registry.default_config(task)
     return registry.make_rules(task, cfg, load_model(cfg.scene, cfg.timestep, cfg.cone))
 
 

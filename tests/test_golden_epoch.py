@@ -1,6 +1,7 @@
-"""One epoch of each task (2 envs, seed 0, C engine) reproduces the golden record
-(tests/data/golden_epoch.json, written by ``python -m tests.golden_epoch``): every metrics.csv
-value except the timing columns. Guards refactors against silent changes of behaviour.
+"""One epoch of each task (2 envs, seed 0, C engine) reproduces the golden record of this
+machine class (tests/data/golden_epoch*.json, written by ``python -m tests.golden_epoch``; see
+`tests.golden_epoch.machine_class`): every metrics.csv value except the timing columns.
+Guards refactors against silent changes of behaviour.
 Cost: ~25-50 s per task (compile + one epoch), e2e tier."""
 import json
 

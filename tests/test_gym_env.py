@@ -164,11 +164,11 @@ def test_compute_reward_with_empty_or_partial_info():
 
 
 def test_settings_come_from_mjx_envs_settings():
-    from mjx_envs import settings
+    from mjx_envs import registry
 
     for task in TASKS:
-        assert ge.task_config(task) == settings.default_config(task)
-        assert ge.task_settings(task) == dataclasses.asdict(settings.default_config(task))
+        assert ge.task_config(task) == registry.default_config(task)
+        assert ge.task_settings(task) == dataclasses.asdict(registry.default_config(task))
     s = ge.task_settings("push", max_delta=0.03)
     assert s["max_delta"] == 0.03 and s["target_radius"] == (0.06, 0.08)
     env = ge.DualUR3GoalEnv("pot", episode_length=20)
@@ -178,7 +178,7 @@ def test_settings_come_from_mjx_envs_settings():
     sim = NumpyDualArmEnv({"max_delta": 0.02, "dt": 0.04,
                            "goal_low": [[0.2, -0.08, 0.43], [0.2, -0.3, 0.43]]})
     assert sim.config.max_delta == 0.02 and sim.config.goal_low[0] == (0.2, -0.08, 0.43)
-    assert NumpyDualArmEnv(settings.task_config("pickup"), task="pickup").rules.has_object
+    assert NumpyDualArmEnv(registry.task_config("pickup"), task="pickup").rules.has_object
     with pytest.raises(ValueError, match="object joint"):
         NumpyDualArmEnv({"scene": "scene_reach.xml"}, task="push")
     with pytest.raises(ValueError, match="unknown task"):

@@ -33,14 +33,14 @@ from daddpg_jax.deploy.onnx_policy import (  # noqa: E402
 from daddpg_jax.deploy.policy import file_sha256  # noqa: E402
 from daddpg_jax.deploy.server import PolicyServer  # noqa: E402
 from daddpg_jax.running.export import policy_arrays, write_export  # noqa: E402
-from mjx_envs import settings  # noqa: E402
+from mjx_envs import registry  # noqa: E402
 
 N_INPUTS = 1000
 
 
 @pytest.fixture(scope="module")
 def envs():
-    return {t: mjx_envs.make(t, physics="c") for t in settings.TASKS}
+    return {t: mjx_envs.make(t, physics="c") for t in registry.TASKS}
 
 
 def random_state(cfg: TrainConfig, env, seed: int):
@@ -81,10 +81,10 @@ def _export(tmp_path, envs, task, algo, seed=0, fmt="onnx"):
     return write_export(arrays, str(tmp_path / f"{task}_{algo}.{fmt}")), arrays
 
 
-@pytest.mark.parametrize("task", settings.TASKS)
+@pytest.mark.parametrize("task", registry.TASKS)
 @pytest.mark.parametrize("algo", variants.ALGOS)
 def test_onnxruntime_equals_numpy_policy(tmp_path, envs, task, algo):
-    seed = 10 * settings.TASKS.index(task) + variants.ALGOS.index(algo)
+    seed = 10 * registry.TASKS.index(task) + variants.ALGOS.index(algo)
     path, arrays = _export(tmp_path, envs, task, algo, seed=seed)
     npz = write_export(arrays, str(tmp_path / "p.npz"))
     ref, pol = NumpyPolicy.load(npz), OnnxPolicy.load(path)

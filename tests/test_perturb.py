@@ -16,7 +16,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import acting
-from mjx_envs import perturb, rules, settings, wrappers
+from mjx_envs import perturb, registry, rules, wrappers
 from mjx_envs.observation import obs_layout
 
 L = obs_layout()
@@ -62,8 +62,8 @@ def nominal():
 
 
 def test_off_by_default_and_nothing_carried():
-    for task in settings.TASKS:
-        cfg = settings.default_config(task)
+    for task in registry.TASKS:
+        cfg = registry.default_config(task)
         assert not perturb.Perturbation.from_config(cfg).active
         assert all(getattr(cfg, f) == 0 for f in perturb.FIELDS) and not cfg.perturb_exact
         assert cfg.action_history == 0
@@ -71,8 +71,8 @@ def test_off_by_default_and_nothing_carried():
     s = env.reset(jax.random.PRNGKey(0))
     assert "perturb" not in s.info and "action_history" not in s.info
     assert env.obs_size == perturb.OBS_SIZE == 25
-    assert settings.test_overrides("reach")["latency"] == 0
-    assert isinstance(settings.test_overrides("reach")["obs_period"], int)
+    assert registry.test_overrides("reach")["latency"] == 0
+    assert isinstance(registry.test_overrides("reach")["obs_period"], int)
 
 
 def test_reach_object_terms_stay_zero_under_every_perturbation():
@@ -170,7 +170,7 @@ def test_action_history_appends_the_chosen_actions_and_changes_nothing_else():
     env = mjx_envs.make("push", physics="c", action_history=k)
     assert env.obs_size == n + 4 * k
     assert obs_layout(k)["action_history"] == (n, n + 4 * k)
-    assert settings.test_overrides("push").get("action_history") is None   # kept in tests
+    assert registry.test_overrides("push").get("action_history") is None   # kept in tests
 
 
 def test_training_draws_differ_between_envs_within_the_bounds():

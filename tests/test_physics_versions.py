@@ -13,7 +13,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.cli import evaluate as evaluate_cli
-from mjx_envs import settings
+from mjx_envs import registry, settings
 from mjx_envs.model import MJX_UNIQUE_CONTACTS, PHYSICS_V1, load_model
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
@@ -110,12 +110,12 @@ def test_envs_build_the_version_they_are_given():
     (~1 s)."""
     v1 = np.asarray(PHYSICS_V1["finger_size"])
     env = mjx_envs.make("push", physics="c", physics_version=1)
-    sim = NumpyDualArmEnv(settings.task_config("push", physics_version=1), task="push")
-    now = NumpyDualArmEnv(settings.default_config("push"), task="push")
+    sim = NumpyDualArmEnv(registry.task_config("push", physics_version=1), task="push")
+    now = NumpyDualArmEnv(registry.default_config("push"), task="push")
     for model in (env.mj_model, sim.model):
         np.testing.assert_allclose(model.geom_size[model.geom("l_finger1").id], v1)
     assert now.model.geom_size[now.model.geom("l_finger1").id][0] > v1[0]
-    assert settings.default_config("push").physics_version == settings.PHYSICS_VERSION
+    assert registry.default_config("push").physics_version == settings.PHYSICS_VERSION
 
 
 def test_an_unknown_version_is_refused(capsys):
@@ -124,7 +124,7 @@ def test_an_unknown_version_is_refused(capsys):
         with pytest.raises(ValueError, match="physics_version"):
             load_model("scene_push.xml", physics_version=bad)
         with pytest.raises(ConfigError, match="physics_version"):
-            settings.task_config("push", physics_version=bad)
+            registry.task_config("push", physics_version=bad)
         assert evaluate_cli.main(["no_such_run", "--physics-version", str(bad)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--physics-version must be in" in err

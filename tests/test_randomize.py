@@ -11,7 +11,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import acting
-from mjx_envs import randomize, rules, settings, wrappers
+from mjx_envs import randomize, registry, rules, settings, wrappers
 from mjx_envs.observation import obs_layout
 
 L = obs_layout()
@@ -52,36 +52,36 @@ def _run(task="pickup", actions=None, physics="c", **over):
 
 
 def _index(task, **over):
-    cfg = settings.task_config(task, **over)
+    cfg = registry.task_config(task, **over)
     env = mjx_envs.make(task, physics="c", **over)
-    obj = settings.OBJECTS.get(task)
+    obj = registry.OBJECTS.get(task)
     return env, randomize.ModelIndex(env.mj_model, obj[1] if obj else None,
                                      randomize.Randomization.from_config(cfg))
 
 
 def test_off_by_default_with_nothing_carried():
-    for task in settings.TASKS:
-        cfg = settings.default_config(task)
+    for task in registry.TASKS:
+        cfg = registry.default_config(task)
         r = randomize.Randomization.from_config(cfg)
         assert not r.active and not r.physical
         assert all(getattr(cfg, f, 0.0) == 0.0 for f in randomize.FIELDS)
         for name in randomize.FIELDS:
             if hasattr(cfg, name):
-                assert settings.test_overrides(task)[name] == 0.0
+                assert registry.test_overrides(task)[name] == 0.0
     env = mjx_envs.make("pickup", physics="c")
     assert env.backend.rand is None and env.backend.n_rand_params == 0
     s = env.reset(jax.random.PRNGKey(0))
     assert "physics" not in s.info
     # reach has no object fields
     with pytest.raises(settings.ConfigError, match="unknown config field"):
-        settings.task_config("reach", object_mass=0.1)
+        registry.task_config("reach", object_mass=0.1)
 
 
 @pytest.mark.parametrize("name", randomize.FIELDS)
 def test_each_field_changes_the_model_fields_it_names_and_nothing_else(name):
     task = "pickup"
     _, ix = _index(task, **{name: VALUE[name]}, **EXACT)
-    r = randomize.Randomization.from_config(settings.task_config(task, **{name: VALUE[name]},
+    r = randomize.Randomization.from_config(registry.task_config(task, **{name: VALUE[name]},
                                                                  **EXACT))
     values = randomize.draw(np, rules.NumpySampler(), np.random.default_rng(0), r)
     fields = randomize.model_fields(np, ix, values["params"])
@@ -242,7 +242,7 @@ def test_mjx_and_c_build_the_same_models_and_start_states():
 def test_numpy_simulator_runs_the_nominal_physics():
     from mjx_envs.numpy_env import NumpyDualArmEnv
 
-    cfg = settings.task_config("push", object_mass=0.3)
+    cfg = registry.task_config("push", object_mass=0.3)
     with pytest.warns(UserWarning, match="nominal physics"):
         sim = NumpyDualArmEnv(cfg, task="push")
     assert sim.config.object_mass == 0.0

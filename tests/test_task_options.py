@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from mjx_envs import schema, settings
+from mjx_envs import registry, schema, settings
 from mjx_envs.core import SAMPLER
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
@@ -79,9 +79,9 @@ def _rest_goal_height(env):
 
 @pytest.mark.parametrize("task", LIFT_TASKS)
 def test_off_by_default_and_outputs_unchanged(task):
-    cfg = settings.default_config(task)
+    cfg = registry.default_config(task)
     assert cfg.goal_rest_fraction == 0.0 and cfg.grasp_start_fraction == 0.0
-    assert settings.task_config(task, **OFF) == cfg
+    assert registry.task_config(task, **OFF) == cfg
     default = _env(task)
     explicit = _env(task, **OFF, n_grasp_states=N_STATES)  # differs in an unused field only
     assert default.grasp_states is None and explicit.grasp_states is None
@@ -137,7 +137,7 @@ def test_goal_rest_fraction_half_about_half():
 
 def test_goal_rest_fraction_numpy_and_jax_agree():
     """The NumPy simulator supports goal_rest_fraction: same draws -> same goals."""
-    cfg = settings.task_config("pot", goal_rest_fraction=0.5)
+    cfg = registry.task_config("pot", goal_rest_fraction=0.5)
     r = _env("pot", goal_rest_fraction=0.5).rules
     for seed in range(4):
         rec = RecordingSampler(SAMPLER)
@@ -146,7 +146,7 @@ def test_goal_rest_fraction_numpy_and_jax_agree():
         g_np, q_np = r.reset(np, ReplaySampler(rec.draws), None)
         np.testing.assert_allclose(g_np, np.asarray(g_jax), rtol=0, atol=1e-6)
         np.testing.assert_allclose(q_np, np.asarray(q_jax), rtol=0, atol=1e-6)
-    sim = NumpyDualArmEnv(settings.replace_config(cfg, goal_rest_fraction=1.0), task="pot")
+    sim = NumpyDualArmEnv(schema.replace_config(cfg, goal_rest_fraction=1.0), task="pot")
     g = sim.reset(np.random.default_rng(0)).desired_goal
     np.testing.assert_allclose(g[:, 2], _rest_goal_height(_env("pot")), atol=1e-6)
 
@@ -237,13 +237,13 @@ def test_test_overrides_switch_the_options_off():
     objects = {"object_mass": 0.0, "object_size": 0.0, "object_friction": 0.0,
                "table_height": 0.0}   # mjx_envs/randomize.py, object tasks
     for task in LIFT_TASKS:
-        assert settings.test_overrides(task) == {**OFF, **perturbations, **objects}
+        assert registry.test_overrides(task) == {**OFF, **perturbations, **objects}
         on = {"goal_rest_fraction": 0.5, "grasp_start_fraction": 0.5, "latency": 2}
-        cfg = settings.task_config(task, **{**on, **settings.test_overrides(task)})
-        assert cfg == settings.default_config(task)
-    assert settings.test_overrides("reach") == perturbations
-    assert settings.test_overrides("push") == {**perturbations, **objects}
-    assert settings.test_overrides("toy") == {}
+        cfg = registry.task_config(task, **{**on, **registry.test_overrides(task)})
+        assert cfg == registry.default_config(task)
+    assert registry.test_overrides("reach") == perturbations
+    assert registry.test_overrides("push") == {**perturbations, **objects}
+    assert registry.test_overrides("toy") == {}
     from daddpg_jax.analysis.evaluation import standard_env_overrides
 
     assert standard_env_overrides("pot", {"grasp_start_fraction": 1.0, "max_delta": 0.04}) == {
@@ -255,7 +255,7 @@ def test_robot_client_runs_the_standard_task(monkeypatch):
     from daddpg_jax.deploy import robot_session, server
     from daddpg_jax.deploy.limits import RobotLimits
 
-    env = {**schema.to_dict(settings.default_config("pickup")), "goal_rest_fraction": 0.5,
+    env = {**schema.to_dict(registry.default_config("pickup")), "goal_rest_fraction": 0.5,
            "grasp_start_fraction": 1.0, "dt": 0.04}
 
     class FakeClient:
@@ -271,7 +271,7 @@ def test_robot_client_runs_the_standard_task(monkeypatch):
     monkeypatch.setattr(server, "PolicyClient", FakeClient)
     limits = RobotLimits(control_period=0.04)
     _, task_cfg = robot_session.served_policy("http://x", limits, None, None, None)
-    assert task_cfg == settings.default_config("pickup")  # the robot's own, standard task
+    assert task_cfg == registry.default_config("pickup")  # the robot's own, standard task
     assert task_cfg.grasp_start_fraction == 0.0
 
 
@@ -297,10 +297,10 @@ def test_numpy_env_accepts_the_fields_and_disables_grasp_starts():
 ])
 def test_range_validation(overrides, message):
     with pytest.raises(ConfigError, match=message):
-        settings.task_config("pickup", **overrides)
+        registry.task_config("pickup", **overrides)
 
 
 def test_tasks_without_the_options_reject_them():
     for task in ("reach", "push"):
         with pytest.raises(ConfigError, match="unknown config field.*goal_rest_fraction"):
-            settings.task_config(task, goal_rest_fraction=0.5)
+            registry.task_config(task, goal_rest_fraction=0.5)

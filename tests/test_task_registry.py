@@ -21,7 +21,7 @@ import pytest
 import mjx_envs
 from daddpg_jax.algo import config as config_lib
 from daddpg_jax.deploy import NumpyPolicy
-from mjx_envs import registry, settings
+from mjx_envs import registry
 from mjx_envs.numpy_env import NumpyDualArmEnv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -40,16 +40,16 @@ def _python(code_or_args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
 
 def test_builtin_tasks_come_from_their_modules():
     """~0.1 s. The tables are the registered tasks' records, in the built-in order."""
-    assert settings.TASKS == BUILTIN == registry.task_names()
+    assert registry.TASKS == BUILTIN == registry.task_names()
     for name in BUILTIN:
         task = registry.get(name)
         assert task.module == f"mjx_envs.tasks.{name}"
-        assert settings.default_config(name) is task.config is settings.TASK_SETTINGS[name]
+        assert registry.default_config(name) is task.config is registry.TASK_SETTINGS[name]
         assert mjx_envs.ENV_IDS[name] == task.gym_id
         assert mjx_envs.DENSE_ENV_IDS[name] == task.dense_gym_id
         assert config_lib.task_presets(name)["cpu"] == task.cpu_preset
         assert config_lib.preset_env(name) == task.env_preset
-    assert set(settings.OBJECTS) == {"push", "pickup", "pot"}
+    assert set(registry.OBJECTS) == {"push", "pickup", "pot"}
     assert registry.scripted_task_names() == ("push", "pickup", "pot")
     assert config_lib.preset("pickup", device="cpu")["n_step"] == 3
     assert config_lib.preset_env("pot") == {"grasp_start_fraction": 0.5}
@@ -121,8 +121,8 @@ try:
 except ValueError as e:
     clash = str(e)
 print(json.dumps(dict(
-    tasks=list(settings.TASKS), scene=settings.TASK_SETTINGS["slide"].scene,
-    object=settings.OBJECTS["slide"][0], cpu=preset("slide", device="cpu")["n_cycles"],
+    tasks=list(registry.TASKS), scene=registry.TASK_SETTINGS["slide"].scene,
+    object=registry.OBJECTS["slide"][0], cpu=preset("slide", device="cpu")["n_cycles"],
     scripted=list(registry.scripted_task_names()), centre=goals.mean(axis=1).tolist(),
     gym_goal=obs["desired_goal"].reshape(2, 3).mean(axis=0).tolist(), clash=clash,
     jax="jax" in sys.modules)))

@@ -7,7 +7,7 @@ import jax, jax.numpy as jnp, mujoco, numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [HERE, os.path.join(HERE, "..", "finger_pads")]
 import mjx_envs
-from mjx_envs import settings
+from mjx_envs import registry, settings
 from mjx_envs.physics import backends
 from daddpg_jax.analysis import engine_parity as ep
 
@@ -83,7 +83,7 @@ def model_for(name):
 
 for name in sys.argv[3:]:
     m = model_for(name)
-    body = m.body(settings.OBJECTS[TASK][1]).id
+    body = m.body(registry.OBJECTS[TASK][1]).id
     mass = float(m.body_subtreemass[body])
     row = {}
     for L in LOADS:

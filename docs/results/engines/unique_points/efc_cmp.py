@@ -1,7 +1,7 @@
 import sys, json
 import jax, jax.numpy as jnp, mujoco, numpy as np
 import mjx_envs
-from mjx_envs import settings
+from mjx_envs import registry, settings
 from mjx_envs.physics import backends
 from daddpg_jax.analysis import engine_parity as ep
 np.set_printoptions(precision=4, suppress=True, linewidth=160)
@@ -9,7 +9,7 @@ TASK = "pickup"; L = 6.0
 env = mjx_envs.make(TASK, physics="c"); m = env.mj_model; n_sub = env.config.n_substeps
 st = ep.grasp_states(TASK); idx = np.linspace(0, st["qpos"].shape[0]-1, 32).astype(int)
 st = {k: v[idx] for k, v in st.items()}
-body = m.body(settings.OBJECTS[TASK][1]).id
+body = m.body(registry.OBJECTS[TASK][1]).id
 f = np.zeros((m.nbody, 6)); f[body, 2] = -L * float(m.body_subtreemass[body]) * 9.81
 dofs = ep._object_dofs(m, TASK)
 mjx = backends.import_mjx(); mm = mjx.put_model(m); d0 = mjx.make_data(mm)

@@ -4,7 +4,7 @@ contacts' total friction force per engine."""
 import os, sys, json, time
 import jax, jax.numpy as jnp, mujoco, numpy as np
 import mjx_envs
-from mjx_envs import settings
+from mjx_envs import registry, settings
 from mjx_envs.physics import backends
 from daddpg_jax.analysis import engine_parity as ep
 TASK = sys.argv[1]; L = float(sys.argv[2]); OUT = sys.argv[3]
@@ -14,7 +14,7 @@ for k, v in [a.split("=") for a in sys.argv[4:]]:
     elif k == "iters": m.opt.iterations = int(v); m.opt.ls_iterations = int(v); m.opt.tolerance = 1e-12
 st = ep.grasp_states(TASK); idx = np.linspace(0, st["qpos"].shape[0]-1, 32).astype(int)
 st = {k: v[idx] for k, v in st.items()}
-body = m.body(settings.OBJECTS[TASK][1]).id
+body = m.body(registry.OBJECTS[TASK][1]).id
 f = np.zeros((m.nbody, 6)); f[body, 2] = -L * float(m.body_subtreemass[body]) * 9.81
 dofs = ep._object_dofs(m, TASK)
 S = {"qpos": [], "qvel": [], "mocap": [], "ctrl": []}; acc_c = []; cnt_c = []
