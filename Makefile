@@ -1,6 +1,6 @@
 PYTHON ?= python3
 .PHONY: install test test-mjx test-e2e test-slow test-ci test-all coverage train bench gpu-check \
-	lint render wheel-smoke
+	lint render wheel-smoke robot-only
 
 install:
 	$(PYTHON) -m pip install -e ".[dev]"
@@ -55,3 +55,8 @@ lint:
 # the wheel, installed non-editable into a fresh venv, used from outside the repository
 wheel-smoke:
 	PYTHON=$(PYTHON) bash .ci/wheel_smoke.sh
+
+# the robot side alone: NumPy, h11 and MuJoCo in a fresh venv, the package with --no-deps
+# (also run by the e2e tier: tests/test_robot_only_install.py)
+robot-only:
+	PYTHON=$(PYTHON) bash .ci/robot_only.sh

@@ -5,10 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from daddpg_jax import variants
 from daddpg_jax.algo import losses as agent_lib
 from daddpg_jax.algo import networks as nets
 from daddpg_jax.algo import normalizer as norm
-from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import REPLAY_RATIO, TrainConfig, preset, replay_ratio
 from tests.conftest import HIDDEN, OBS, B, random_batch, tree_equal
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import mjx_envs
+from daddpg_jax import variants
 from daddpg_jax.algo import losses as agent_lib
 from daddpg_jax.algo import networks as nets
-from daddpg_jax.algo import variants
 from daddpg_jax.algo.config import TrainConfig, preset
 from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.running import checkpoint as ckpt

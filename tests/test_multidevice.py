@@ -43,7 +43,7 @@ def test_sharded_update_equals_unsharded_update():
     from daddpg_jax.algo import losses as agent_lib
     from daddpg_jax.algo import normalizer as norm
     from daddpg_jax.algo import sharding as shd
-    from daddpg_jax.algo import variants
+    from daddpg_jax import variants
     from jax.sharding import PartitionSpec as P
     OBS, B = 25, 64
     mesh = shd.make_mesh(2)

@@ -19,7 +19,8 @@ onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 import mjx_envs  # noqa: E402
-from daddpg_jax.algo import normalizer, variants  # noqa: E402
+from daddpg_jax import variants  # noqa: E402
+from daddpg_jax.algo import normalizer  # noqa: E402
 from daddpg_jax.algo.config import TrainConfig  # noqa: E402
 from daddpg_jax.cli import export as export_cli  # noqa: E402
 from daddpg_jax.deploy import NumpyPolicy, PolicyFormatError  # noqa: E402

@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from daddpg_jax.algo import replay, variants
+from daddpg_jax import variants
+from daddpg_jax.algo import replay
 from daddpg_jax.algo.train import (
     ROLLOUT_DONE,
     UPDATES_DONE,

@@ -13,8 +13,8 @@ import importlib.util
 import math
 import os
 
-from daddpg_jax.algo.variants import ALGOS
-from daddpg_jax.algo.variants import get as get_variant
+from daddpg_jax.variants import ALGOS
+from daddpg_jax.variants import get as get_variant
 from mjx_envs import registry
 from mjx_envs.registry import default_config
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict

@@ -27,7 +27,7 @@ import optax
 from flax import struct
 
 from daddpg_jax.algo import networks as nets
-from daddpg_jax.algo.variants import NUM_ARMS, SUM, Variant
+from daddpg_jax.variants import NUM_ARMS, SUM, Variant
 
 
 @struct.dataclass

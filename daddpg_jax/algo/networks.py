@@ -4,7 +4,7 @@ One network definition serves every agent: parameters are created with `jax.vmap
 keys (A = the variant's `num_agents`: 2 arms, or 1 for 'single') and applied with
 `jax.vmap(apply)` over the agent axis.
 
-What each network sees is read from the variant's row in `daddpg_jax.algo.variants` (o =
+What each network sees is read from the variant's row in `daddpg_jax.variants` (o =
 normalized per-arm observations [B, 2, obs], g = normalized goals [B, 2, 3], a = joint actions
 [B, 8] in [-1, 1]; agent j controls a[:, j*d:(j+1)*d], d = `agent_action_dim`):
     actor_sees  'both': (o_1, o_2, g_1, g_2)       'own': agent i's (o_i, g_i)
@@ -20,9 +20,9 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from daddpg_jax.algo import variants
-from daddpg_jax.algo.variants import ARM_ACTION as ARM_ACTION  # re-exported (export, trainer)
-from daddpg_jax.algo.variants import BOTH, OWN, Variant
+from daddpg_jax import variants
+from daddpg_jax.variants import ARM_ACTION as ARM_ACTION  # re-exported (export, trainer)
+from daddpg_jax.variants import BOTH, OWN, Variant
 
 VariantLike = Variant | str
 

@@ -20,7 +20,7 @@ from daddpg_jax.algo.config import (
     preset_env,
     robust_env,
 )
-from daddpg_jax.algo.variants import ALGOS, VARIANTS
+from daddpg_jax.variants import ALGOS, VARIANTS
 from mjx_envs import registry, schema, settings
 from mjx_envs.schema import ConfigError
 

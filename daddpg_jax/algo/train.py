@@ -44,7 +44,8 @@ import numpy as np
 from flax import struct
 from jax.experimental import io_callback
 
-from daddpg_jax.algo import acting, losses, replay, variants
+from daddpg_jax import variants
+from daddpg_jax.algo import acting, losses, replay
 from daddpg_jax.algo import networks as nets
 from daddpg_jax.algo import normalizer as norm
 from daddpg_jax.algo import sharding as shd

@@ -11,7 +11,7 @@ The graph (opset ``OPSET``) repeats ``NumpyPolicy.act`` step for step in float32
     inputs   observation  float32 [batch, 2, obs_size]
              desired_goal float32 [batch, 2, goal_size]
     o = clip((clip(observation, ±clip_obs) - obs_mean) / obs_std, ±norm_clip)   (goal likewise)
-    actor inputs as the variant's row says (daddpg_jax.algo.variants): 'both' = every agent
+    actor inputs as the variant's row says (daddpg_jax.variants): 'both' = every agent
     sees [o_1, o_2, g_1, g_2] flattened; 'own' = agent i sees [o_i, g_i]
     agent i: tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)
     output   actions      float32 [batch, 8] (the agents' action slots in agent order)
@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from daddpg_jax.algo import variants
+from daddpg_jax import variants
 from daddpg_jax.deploy.policy import (
     MAX_INFLATED_BYTES,
     MAX_META_BYTES,

@@ -10,7 +10,7 @@ The computation repeats the trainer's ``TrainFns.act`` step for step in float32 
 build each variant's actor inputs, MLP, tanh), and matches it to 1e-5 on CPU.
 
 What depends on the algorithm variant (number of agents, what each actor sees, the size of
-each agent's action slot) is read from the variant's row in ``daddpg_jax.algo.variants``; the
+each agent's action slot) is read from the variant's row in ``daddpg_jax.variants``; the
 task's settings from ``mjx_envs.settings``. Both are standard library only, so this module
 imports NumPy and the standard library only: keep it that way (tests/test_deploy.py checks it
 in a subprocess where importing jax or mujoco fails).
@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from daddpg_jax.algo import variants
+from daddpg_jax import variants
 from mjx_envs import observation as obs_lib
-from mjx_envs import schema
+from mjx_envs import registry, schema
 from mjx_envs import settings as task_settings_lib
 
 FORMAT_VERSION = 1
@@ -194,7 +194,7 @@ def array_plan(meta: Mapping) -> list[tuple[str, tuple[int, ...]]]:
     """The arrays a policy file with this (``check_meta``-checked) ``meta`` holds, with their
     shapes, after checking what ``meta`` declares against what the code allows, from ``meta``
     alone: the algo is a known variant whose agent count, action slots and actor input size
-    ``meta`` repeats (``daddpg_jax.algo.variants``), 2 arms of 4 action entries, an observation
+    ``meta`` repeats (``daddpg_jax.variants``), 2 arms of 4 action entries, an observation
     of the length the observation code builds (``mjx_envs.observation.obs_size`` of the env's
     ``action_history``), a 3-d goal, a chain of actor layers from the actor input to the action
     slot, and all the values at most ``MAX_INFLATED_BYTES`` (as float32). PolicyFormatError
@@ -300,9 +300,9 @@ def task_settings(task: str, saved: Mapping[str, Any] | None = None):
     """The task's settings (a ``mjx_envs.settings.TaskConfig``) holding the values in ``saved``
     (a policy export's ``env``; keys that are not fields, such as ``dt``, are ignored). Fields
     that ``saved`` lacks (an export written before the field existed) keep the values of
-    ``mjx_envs.settings.default_config(task)``. Raises ValueError for an unknown task or a value
+    ``mjx_envs.registry.default_config(task)``. Raises ValueError for an unknown task or a value
     outside its field's range."""
-    return task_settings_lib.saved_config(task, saved or {})
+    return registry.saved_config(task, saved or {})
 
 
 def env_settings(task: str, saved: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -310,7 +310,7 @@ def env_settings(task: str, saved: Mapping[str, Any] | None = None) -> dict[str,
     saved)``, ``dt`` (the control period, ``timestep * n_substeps`` unless saved) and any other
     key ``saved`` holds. A task that ``mjx_envs.settings`` does not know keeps ``saved`` as is."""
     out = dict(saved or {})
-    if task in task_settings_lib.TASK_SETTINGS:
+    if task in registry.TASK_SETTINGS:
         out.update(schema.to_dict(task_settings(task, saved)))
     if "dt" not in out and "timestep" in out and "n_substeps" in out:
         out["dt"] = float(out["timestep"]) * int(out["n_substeps"])
@@ -478,7 +478,7 @@ class NumpyPolicy:
     @property
     def env(self) -> dict[str, Any]:
         """Env settings of the run (dt, max_delta, workspace boxes, ...): the values saved with
-        the policy, and ``mjx_envs.settings.default_config(task)``'s for fields the file lacks
+        the policy, and ``mjx_envs.registry.default_config(task)``'s for fields the file lacks
         (see `env_settings`). A copy: changing it changes nothing in the policy."""
         return json.loads(json.dumps(self._env))
 

@@ -25,7 +25,7 @@ key                         value
                             came from
 ==========================  ==============================================================
 
-``A`` is the variant's ``num_agents`` (``daddpg_jax.algo.variants``): 2 (one actor per arm;
+``A`` is the variant's ``num_agents`` (``daddpg_jax.variants``): 2 (one actor per arm;
 arm 0 = left, each with a 4-d action slot) or 1 (one actor, 8-d output). The actor is
 ``tanh(W_L relu(... relu(W_0 x + b_0) ...) + b_L)`` on the normalized inputs of
 ``daddpg_jax.algo.networks.actor_inputs``. The reader (``daddpg_jax.deploy.NumpyPolicy``)
@@ -41,8 +41,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from daddpg_jax import variants
 from daddpg_jax.algo import normalizer as norm
-from daddpg_jax.algo import variants
 from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.deploy.policy import FORMAT_VERSION, write_policy_file
 from daddpg_jax.running import checkpoint as ckpt

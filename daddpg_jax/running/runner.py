@@ -38,7 +38,7 @@ import jax
 import numpy as np
 
 import mjx_envs
-from daddpg_jax.algo import variants
+from daddpg_jax import variants
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.train import StageClock, make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
