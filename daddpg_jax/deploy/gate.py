@@ -180,11 +180,6 @@ class GatedArms:
         self.arms.servo(poses)
         return poses
 
-    def hold(self) -> None:
-        """Sends the last commanded poses again (the arms stay on their targets)."""
-        if self.last_pose is not None:
-            self.arms.servo(self.last_pose)
-
     def grip(self, openings) -> None:
         why = self.check_fingers(openings)
         if why is not None:
