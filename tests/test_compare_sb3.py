@@ -1,4 +1,5 @@
-"""compare_sb3.py end to end for our side (SB3 and torch are an optional extra, not in [dev])."""
+"""experiments/sb3/compare_sb3.py end to end for our side (SB3 and torch are an optional extra,
+not in [dev])."""
 
 import json
 import os
@@ -7,17 +8,18 @@ import sys
 
 import pytest
 
-from daddpg_jax.cli import compare_sb3
-from daddpg_jax.tools import sb3_compare
+from experiments.sb3 import compare_sb3
+from experiments.sb3 import harness as sb3_compare
 from tests.conftest import call_main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPT = os.path.join(ROOT, "experiments", "sb3", "compare_sb3.py")
 
 
 @pytest.mark.e2e
 def test_compare_ours_only_writes_results(tmp_path):
     out = str(tmp_path / "cmp")
-    cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"), "--task", "reach",
+    cmd = [sys.executable, SCRIPT, "--task", "reach",
            "--methods", "single", "--time-budget", "20", "--eval-episodes", "20", "--out", out]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -55,7 +57,7 @@ def test_sb3_schedule_matches_ours_per_cycle():
 @pytest.mark.e2e
 def test_compare_ours_many_envs_settings(tmp_path):
     out = str(tmp_path / "cmp")
-    cmd = [sys.executable, os.path.join(ROOT, "experiments", "compare_sb3.py"), "--task", "reach",
+    cmd = [sys.executable, SCRIPT, "--task", "reach",
            "--methods", "single", "--time-budget", "5", "--eval-episodes", "10",
            "--num-envs", "4", "--updates-per-cycle", "3", "--cycles-per-epoch", "2", "--out", out]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)

@@ -1,4 +1,4 @@
-"""The engine-parity measurement (daddpg_jax/analysis/engine_parity.py): its C-engine harness
+"""The engine-parity measurement (experiments/engine_parity/parity.py): its C-engine harness
 reproduces the C backend, its candidate edits change what they name; the table format.
 
 Cost: C engine only, no MJX compile, ~10 s in all; except the `mjx`-tier statistical parity
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import mjx_envs
-from daddpg_jax.analysis import engine_parity as ep
+from experiments.engine_parity import parity as ep
 
 
 def _run(env, keys, actions):

@@ -269,19 +269,6 @@ def test_eval_env_drops_training_randomization():
     assert wrappers.find(ev, wrappers.Randomize) is None
 
 
-def test_cost_script_measures_off_and_on(tmp_path):
-    import json
-
-    from daddpg_jax.analysis import randomization_cost
-
-    out = tmp_path / "cost.json"
-    randomization_cost.main(["--task", "reach", "--sizes", "2", "--repeats", "1", "--out",
-                             str(out)])
-    data = json.loads(out.read_text())
-    assert [r["randomization"] for r in data["rows"]] == ["off", "on"]
-    assert all(r["env_steps_per_s"] > 0 for r in data["rows"])
-    assert "object_mass" not in data["fields"] and data["fields"]["base_yaw"] == 2.0
-
 
 def test_believed_obs_moves_the_gripper_terms_consistently():
     _, ix = _index("pickup", base_yaw=5.0, base_offset=0.01, **EXACT)

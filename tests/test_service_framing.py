@@ -5,8 +5,8 @@ it (--policy-sha256), and the service can require a shared token (--token-file, 
 a request line and headers over 64 KiB get 431. An honest request on the same server still gets
 200 (positive control).
 
-In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~4.5 s, and
-~5 s more for the e2e test of the flood benchmark."""
+In-process, on the checked-in export tests/data/legacy_reach/policy.npz (no JAX): ~4.5 s (the
+service benchmarks: tests/test_service_bench.py)."""
 
 from __future__ import annotations
 
@@ -186,25 +186,6 @@ def test_token_required(policy, tmp_path, capsys):
     assert "token file" in capsys.readouterr().err
 
 
-@pytest.mark.e2e
-def test_flood_benchmark_runs_bounded(tmp_path):
-    """The flood benchmark (service and flooders in their own processes), shortened: 2
-    flooders, two phases of 1 s; ~5 s. The figures in docs/RELIABILITY.md come from its full
-    run."""
-    from daddpg_jax.cli import bench_flood
-
-    out_json = tmp_path / "flood.json"
-    assert bench_flood.main([GOOD, "--flooders", "2", "--seconds", "1", "--json",
-                             str(out_json)]) == 0
-    out = json.loads(out_json.read_text())
-    assert out["malformed_bodies_refused"] > 10
-    for phase in ("alone", "flooded"):
-        assert 20 <= out[phase]["requests"] <= 30 and out[phase]["rtt_ms_p50"] < 40
-    assert bench_flood.malformed_body(100, "numbers")[:3] == b"[1,"
-    with pytest.raises(SystemExit):
-        bench_flood.main([GOOD, "--flooders", "1000"])
-
-
 def test_flood_defences(server, policy):
     """A body with more commas than any request of the policy holds is refused before the JSON
     parser builds its values; after an error answer a kept connection's next request waits
@@ -229,33 +210,6 @@ def test_flood_defences(server, policy):
     for bad_pause in (-1.0, 11.0, float("nan")):
         with pytest.raises(ValueError):
             ServiceLimits(error_pause=bad_pause)
-
-
-def test_benchmark_tools_in_process(server, policy, capsys):
-    """The two service benchmarks' own code in this process (< 1 s): bench_server's timed
-    clients against the module's service, and bench_flood's malformed bodies and argument
-    checks. Their full runs (own processes) are in the e2e tier and docs/RELIABILITY.md."""
-    from daddpg_jax.cli import bench_flood, bench_server
-
-    r = bench_server.bench(server.url, requests=30, clients=3, warmup=2, obs_size=policy.obs_size)
-    assert r["requests"] == 30 and r["clients"] == 3 and r["errors"] == 0
-    assert 0 < r["rtt_ms_p50"] <= r["rtt_ms_p99"] <= r["rtt_ms_max"]
-    assert r["requests_per_s"] > 0 and r["server_compute_ms_p50"] >= 0
-    for argv in (["--requests", "0", GOOD], ["--clients", "33", GOOD], []):
-        with pytest.raises(SystemExit) as e:
-            bench_server.main(argv)
-        assert e.value.code == 2
-    assert bench_flood.malformed_body(5, "nesting") == b"[[[[["
-    assert bench_flood.malformed_body(6, "numbers") == b"[1,1,1"
-    assert bench_flood.malformed_body(7, "strings") == b'["\\[\\[\\'
-    for kind in bench_flood.BODY_KINDS:
-        body = bench_flood.malformed_body(1000, kind)
-        assert len(body) == 1000
-        with pytest.raises((ValueError, RecursionError)):   # deep nesting: RecursionError
-            json.loads(body)
-    with pytest.raises(SystemExit):
-        bench_flood.main([GOOD, "--flooders", "1000"])
-    capsys.readouterr()
 
 
 def _padded(head_bytes: int, body: bytes) -> bytes:

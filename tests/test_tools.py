@@ -1,15 +1,14 @@
 """Library code behind the experiment tools that their own tests run only in subprocesses or
-in marked tiers: the GPU check's stage records, TensorBoard's cost figure and the scripted
+in marked tiers: the GPU check's stage records and the scripted
 rollout of daddpg-scripted-demo. In-process, fast (the rollout compiles one C-engine program of
 a 5-step reach episode, ~3 s)."""
 
 import json
-import math
 
 import numpy as np
 
 import mjx_envs
-from daddpg_jax.analysis import scripted_rollout, tensorboard_overhead
+from daddpg_jax.analysis import scripted_rollout
 from daddpg_jax.tools import gpu_check, gpu_check_stages
 
 
@@ -36,12 +35,6 @@ def test_stage_records_read_back_into_the_report(tmp_path):
 def test_one_line_errors_are_cut():
     assert gpu_check_stages._one_line(ValueError("a\nb")) == "ValueError: a"
     assert len(gpu_check_stages._one_line(ValueError("x" * 1000), width=50)) == 50
-
-
-def test_steps_per_second_between_first_and_last_row():
-    rows = [{"env_steps": "100", "wall_time": "2.0"}, {"env_steps": "300", "wall_time": "3.0"},
-            {"env_steps": "500", "wall_time": "6.0"}]
-    assert math.isclose(tensorboard_overhead.steps_per_s(rows), 100.0)
 
 
 def test_zero_actions_leave_the_arms_at_rest():

@@ -1,2 +1,1 @@
-"""Stand-alone tools beside the trainer: the Stable-Baselines3 comparison (`sb3_compare`) and the
-GPU machine check (`gpu_check`)."""
+"""The GPU machine check (`gpu_check`, its stages in `gpu_check_stages`)."""

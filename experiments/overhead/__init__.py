@@ -1,0 +1,1 @@
+"""What TensorBoard logging and physics randomization cost in env steps/s."""
