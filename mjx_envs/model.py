@@ -12,7 +12,7 @@ larger on every side with margin 0 (MJX's box-box collision ignores contact marg
 0.05 on the finger pairs that only block (pot body; bar middle and caps). 3: MJX returns each
 box-box contact point once, as the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`,
 which the C engine ignores), and pot's finger-handle contacts are softer (solimp 0.9 0.95); on
-the C engine, push and pick up act in versions 2 and 3 alike. See docs/TASKS.md, "MJX vs C".
+the C engine, push and pick up act in versions 2 and 3 alike. See docs/MJX_VS_C.md.
 The scenes in assets/ are the current version; `load_model` builds the older ones from them
 (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`), so that a run or a policy file
 acts with the physics it was trained on (`physics_version_note` says when it does not).
@@ -86,7 +86,7 @@ def physics_version_note(recorded, task: str, simulated: int | None = None,
     if not any(physics_changed(v, task, engine) for v in range(lo + 1, hi + 1)):
         return None
     return (f"trained with physics version {version}, simulated here with version {now} "
-            f"(docs/TASKS.md, 'MJX vs C'): its success can differ from the figures logged in "
+            f"(docs/MJX_VS_C.md): its success can differ from the figures logged in "
             f"training")
 
 

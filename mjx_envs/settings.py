@@ -27,7 +27,7 @@ PHYSICS_VERSION = 3
 the current one, the scenes as shipped. `mjx_envs.model` keeps the history (what each version
 changed, `physics_changed`) and builds the older scenes, so that a run or a policy file acts
 with the physics it was trained on (its record: config.json's and the export's
-``physics_version``, absent = 1; `recorded_physics_version`). See docs/TASKS.md, "MJX vs C"."""
+``physics_version``, absent = 1; `recorded_physics_version`). See docs/MJX_VS_C.md."""
 
 
 def recorded_physics_version(recorded) -> int:

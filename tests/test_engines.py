@@ -277,7 +277,7 @@ def test_scripted_controllers_agree_over_300_episodes(task):
     episodes (seed 2024) on both engines, MJX in chunks of 32; the paired 95 % interval of the
     success difference lies within +-0.10 and each engine keeps the controller's success
     (>= 0.9). One MJX compile + ~10 chunks per task: ~4-5 min per task on a 2-core CPU.
-    Figures: docs/TASKS.md, "MJX vs C"."""
+    Figures: docs/MJX_VS_C.md."""
     c = _scripted_success(task, "c", N_AGREEMENT, seed=2024)
     m = _scripted_success(task, "mjx", N_AGREEMENT, seed=2024, chunk=32)
     counts = engines.paired_counts(c, m)

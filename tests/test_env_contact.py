@@ -31,7 +31,7 @@ B, T_SHORT = 2, 10
 # both engines): gripper positions and finger openings agree within PARITY_POS_M (measured
 # <= 3 mm); object points within PARITY_OBJ_M (physics version 3: measured 3.6 mm push, 2.7 mm
 # pickup, 2.4 mm pot; version 2: 3.4, 2.7 and 5.1 mm; version 1 parted by 17-36 mm, see
-# docs/TASKS.md "MJX vs C"); velocities*dt within PARITY_VEL; Euler angles within PARITY_ROT.
+# docs/MJX_VS_C.md); velocities*dt within PARITY_VEL; Euler angles within PARITY_ROT.
 PARITY_POS_M = 0.02
 PARITY_OBJ_M = 0.010
 PARITY_VEL = 0.05

@@ -1,2 +1,2 @@
 """Where MJX and the C engine part on grasps: the candidate-cause measurement (`parity`,
-`candidates`) and the probes and hold experiments behind docs/TASKS.md, "MJX vs C"."""
+`candidates`) and the probes and hold experiments behind docs/MJX_VS_C.md."""

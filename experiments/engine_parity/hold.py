@@ -8,7 +8,7 @@ the fraction of states where it fell > 20 mm and the mean absolute difference of
 Environment: LOADS (comma list, default 0,3,8), UNIQ=1 (MJX with the unique-points prototype,
 unique_points.py), JAX_ENABLE_X64=1 (float64 MJX). Candidates: model edits of the grasp pairs
 and solver options, or finger pads (pads.py). Outputs: docs/results/engines/grasp_hold/hold_*.json
-and docs/results/engines/unique_points/h_*.json (docs/TASKS.md, "MJX vs C").
+and docs/results/engines/unique_points/h_*.json (docs/MJX_VS_C.md).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ points) per pair over all 32.
 
     UNIQ=1 python experiments/engine_parity/manifold.py [TASK]     # default pickup
 
-UNIQ=1: MJX with the unique-points prototype (unique_points.py). docs/TASKS.md, "MJX vs C".
+UNIQ=1: MJX with the unique-points prototype (unique_points.py). docs/MJX_VS_C.md.
 """
 
 from __future__ import annotations

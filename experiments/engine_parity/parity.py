@@ -17,7 +17,7 @@ stepped), `measure` builds the task on both engines with that change and reports
 Both engines start every episode from the same state: the reset runs on the C engine and the
 MJX env starts from its ``qpos``/``qvel``/targets (``mjx.Data`` with a zero warmstart; the first
 ``mjx.step`` computes everything else), so each MJX variant compiles one program only (the
-batched policy + step) instead of two (compile time: docs/TASKS.md, "MJX vs C").
+batched policy + step) instead of two (compile time: docs/MJX_VS_C.md).
 
 Ways of stepping the C engine (`C_MODES`): ``rollout`` is the backend as it is
 (`mjx_envs.physics.backends.CBackend`: ``mujoco.rollout`` per control step, which zeroes the
@@ -35,7 +35,7 @@ closed loop.
 
 Results are rows of plain dicts (`measure`); `main` (``python -m experiments.engine_parity.parity``
 or ``python experiments/engine_parity/parity.py``) runs candidates
-and writes them to a JSON store and a Markdown table (docs/TASKS.md, "MJX vs C").
+and writes them to a JSON store and a Markdown table (docs/MJX_VS_C.md).
 """
 
 from __future__ import annotations

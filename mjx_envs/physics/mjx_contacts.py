@@ -8,7 +8,7 @@ two or three identical constraint rows. MuJoCo's C engine returns each point onc
 act as one contact with a fraction of the regularization, i.e. a stiffer one: at the C engine's
 grasped states of the scripted pick-up controller MJX counted 15.9 finger contacts against C's
 8.8, and held a bar pulled down with 3x its weight with a 0.8 mm drop against C's 3.1 mm; with
-each point once, 9.2 contacts and a 2.95 mm drop (docs/TASKS.md, "Each contact point once").
+each point once, 9.2 contacts and a 2.95 mm drop (docs/MJX_VS_C.md, "Each contact point once").
 MJX's own plane-convex collision already drops its repeats (``plane_convex``: ``unique``); this
 module does the same for the pairs that do not.
 
