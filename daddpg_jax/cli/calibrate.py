@@ -27,6 +27,21 @@ calibration_max_base_offset_m / calibration_max_base_angle_deg (default 0.05 m /
 its nominal pose. The limits file gets a [calibration.left] / [calibration.right] block
 (replaced on each run); --print-only leaves it unchanged. Exit codes: 0 done; 2 bad arguments,
 files or points, or a refused fit; 4 the arms cannot be reached.
+
+--camera [KIND] calibrates the camera instead (sim, opencv, realsense; default the limits
+file's [camera] kind, else sim): its pose in the world frame from --frames frames of the tag
+board lying on the table at its known places (six 8 cm tags, ids 10-15; assets/tags/README.md),
+a least-squares fit over every corner, each tag's residual printed (px and mm). Refused
+(nothing written): fewer than 3 board tags seen, a fit only mirrored (the board entered
+left-right) or scaled (tags printed at the wrong scale), an RMS reprojection error over 2 px,
+a tag more than 15 mm from its place (named). Intrinsics: the device's (the simulated camera's
+field of view, RealSense), or from --chessboard images (cv2.calibrateCamera; --pattern,
+--square), then written too. --sim-camera-error rehearses it on the simulated camera mounted
+at the limits' pose moved by dx,dy,dz (m),rx,ry,rz (deg). The limits file gets a [camera]
+block (replaced on each run).
+  daddpg-calibrate --limits cell.toml --camera realsense --frames 10
+  daddpg-calibrate --limits cell.toml --camera opencv --chessboard views/*.png --square 0.025
+  daddpg-calibrate --limits sim.toml --camera sim --sim-camera-error 0.03,0,0,0,2,0
 """
 
 from __future__ import annotations
@@ -34,7 +49,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from daddpg_jax.deploy import calibrate
+from daddpg_jax.deploy import calibrate, perception
 from daddpg_jax.deploy.arms import ArmsError
 from daddpg_jax.deploy.limits import ARM_KEYS, LimitsError, RobotLimits
 
@@ -44,9 +59,12 @@ def _parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--limits", required=True, metavar="FILE",
                    help="the robot limits file (TOML or JSON) that receives the calibration")
-    p.add_argument("--points", required=True, metavar="FILE",
-                   help="known world points per arm (JSON)")
+    p.add_argument("--points", metavar="FILE",
+                   help="known world points per arm (JSON; not with --camera)")
     src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--camera", nargs="?", const="", metavar="KIND",
+                     help="calibrate the camera (sim, opencv, realsense; default: the limits "
+                          "file's [camera] kind) from the tag board on the table")
     src.add_argument("--measured", metavar="FILE",
                      help="tool centre on each point in the arm's base frame (JSON)")
     src.add_argument("--ur-hosts", metavar="LEFT,RIGHT", help="read the points from the arms")
@@ -62,11 +80,56 @@ def _parser() -> argparse.ArgumentParser:
                    help="accept a base farther from its nominal pose than the limits file's "
                         "calibration_max_base_offset_m / calibration_max_base_angle_deg")
     p.add_argument("--print-only", action="store_true", help="do not write the limits file")
+    cam = p.add_argument_group("--camera")
+    cam.add_argument("--frames", type=int, default=5, help="frames of the board (default 5)")
+    cam.add_argument("--chessboard", nargs="+", default=(), metavar="IMAGE",
+                     help="views of a chessboard for the intrinsics (cv2.calibrateCamera)")
+    cam.add_argument("--pattern", default="9x6", help="the chessboard's inner corners, CxR")
+    cam.add_argument("--square", type=float, default=0.025, help="its square's side, m")
+    cam.add_argument("--sim-camera-error", default=None, metavar="6 NUMBERS",
+                     help="sim: the true mount moved by dx,dy,dz (m),rx,ry,rz (deg)")
     return p
+
+
+def _camera(args) -> int:
+    """daddpg-calibrate --camera: the exit code."""
+    kind = args.camera or None
+    try:
+        if kind not in (None, *perception.CAMERAS):
+            raise perception.PerceptionError(f"--camera must be one of "
+                                             f"{', '.join(perception.CAMERAS)}, got {kind!r}")
+        error = perception.parse_numbers(args.sim_camera_error, 6, "--sim-camera-error")
+        pattern = perception.parse_numbers(args.pattern.replace("x", ","), 2, "--pattern")
+        limits = RobotLimits.load(args.limits)
+        table, _, lines = perception.calibrate_camera(
+            limits, kind, args.frames, error, args.chessboard,
+            tuple(int(v) for v in pattern), args.square)
+    except (LimitsError, ValueError) as e:  # PerceptionError, the camera's refusals
+        refused = "refused: " if type(e).__name__ == "CalibrationError" else ""
+        print(f"error: {refused}{e}", file=sys.stderr)
+        return 2
+    except RuntimeError as e:  # CameraError: no device, no frame
+        print(f"error: {e}", file=sys.stderr)
+        return 4
+    print("\n".join(lines))
+    if args.print_only:
+        return 0
+    try:
+        calibrate.write_camera(args.limits, table, lines)
+    except (LimitsError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"written into {args.limits}")
+    return 0
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if args.camera is not None:
+        return _camera(args)
+    if not args.points:
+        print("error: --points is needed (or --camera)", file=sys.stderr)
+        return 2
     try:
         limits = RobotLimits.load(args.limits)
         points = calibrate.read_points(args.points, "--points")

@@ -12,6 +12,8 @@ Examples (daddpg-robot-client = python experiments/robot_client.py)
   daddpg-robot-client --arms ur-sim --sim-base-error 0.02,0,0,2,0,-0.02,0,-2 --episodes 20
   daddpg-robot-client --arms ur --ur-hosts 192.168.1.10,192.168.1.11 --limits cell.toml \
       --speed-scale 0.1 --episodes 1 [--dry-run]
+  daddpg-robot-client --arms ur-sim --goals tags --objects camera-tag --rerun run.rrd
+  daddpg-robot-client --arms ur --ur-hosts L,R --objects camera-tag --camera realsense
 
 The robot owns its limits (--limits, printed on stderr at start); the flags may only tighten
 them, and nothing from the service widens them (GET /info is checked: the same control period,
@@ -38,6 +40,7 @@ import argparse
 import json
 import sys
 
+from daddpg_jax.deploy import perception
 from daddpg_jax.deploy import robot_session as session
 from daddpg_jax.deploy.arms import ArmsError, ArmsStopped
 from daddpg_jax.deploy.arms_factory import ARMS_KINDS
@@ -97,7 +100,8 @@ def _parser() -> argparse.ArgumentParser:
              "(steps); see mjx_envs/perturb.py; the safety layer sees the true state")
     add("--arms", choices=ARMS_KINDS, default="sim",
         help="sim: the simulator (default); ur: two UR arms through ur_rtde (pip install "
-             "'daddpg-jax[ur]'; --ur-hosts; reach only; servoL every control period, servoStop "
+             "'daddpg-jax[ur]'; --ur-hosts; reach, or any task with a camera's --objects; "
+             "servoL every control period, servoStop "
              "on abort or exit); ur-sim: the UR path on simulated controllers; ur and ur-sim "
              "convert frames with the limits' calibration (daddpg-calibrate)")
     add("--ur-hosts", default=None, metavar="LEFT,RIGHT",
@@ -109,6 +113,7 @@ def _parser() -> argparse.ArgumentParser:
         help="--arms ur-sim: each simulated base's true error dx,dy,dz (m),yaw (deg), left then "
              "right (the robot side uses the limits' calibration)")
     add("--json", default=None, help="also write the summary to this JSON file")
+    perception.add_arguments(p)  # --goals, --objects, --camera, --rerun
     return p
 
 
@@ -142,7 +147,8 @@ def main(argv=None) -> int:
     bad = session.check_options(args.episodes, args.arms, fast=args.fast, perturb=args.perturb,
                                 ur_hosts=args.ur_hosts, sim_base_error=args.sim_base_error,
                                 policy_sha256=args.policy_sha256)
-    bad = bad or session.check_numbers(args)
+    bad = bad or session.check_numbers(args) or perception.check_options(
+        args.goals, args.objects, args.camera, args.arms)
     if bad:
         return _fail(bad)
     with session.Signals() as signals:
@@ -161,7 +167,8 @@ def main(argv=None) -> int:
             return _fail(f"{e}; the run is stopped", 4)
     out.update(server=args.server, task=setup.task, arms=args.arms, dry_run=args.dry_run,
                algo=setup.info.get("algo"), policy_sha256=setup.info.get("policy_sha256"),
-               seed=args.seed, **session.limits_fields(setup.robot_limits, setup.safety,
+               seed=args.seed, goals=args.goals, objects=args.objects,
+               camera=args.camera, **session.limits_fields(setup.robot_limits, setup.safety,
                                                        args.speed_scale, monitor,
                                                        setup.perturbation))
     return _finish(out, args)

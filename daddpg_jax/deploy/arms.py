@@ -480,6 +480,8 @@ class URArms:
             # the acceleration's share), not by one period's call timeout
             length = float(np.linalg.norm(p[:3] - reading.tool_pose[i, :3]))
             limit = self.guard.timeout + 2.0 * (length / speed + speed / HOME_ACCEL)
+            if self.watchdog_armed:  # the client is talking: a tripped watchdog stays tripped
+                self.guard.call(f"kickWatchdog ({name} arm)", c.kickWatchdog)
             self.guard.call(f"moveL ({name} arm)", c.moveL, p.tolist(), float(speed),
                             HOME_ACCEL, timeout=limit)
 
@@ -588,10 +590,20 @@ class ArmsEnv:
     Every command passes the gate (`daddpg_jax.deploy.gate.GatedArms`, ``self.arms``) with
     ``safety`` (a `SafetyLimits`; None: the simulator's own limits, `safety_of_spec`).
     ``clock``: monotonic seconds; each observation carries ``read_s`` (how long the read took)
-    and ``frozen_s`` (how long the controllers' clocks have not advanced)."""
+    and ``frozen_s`` (how long the controllers' clocks have not advanced).
+
+    ``goals``: a goal source (``read(goal, keepalive) -> (goals the policy sees [2, 3], fault
+    or None)``; ``keepalive()`` holds the arms, to be called before each frame),
+    `daddpg_jax.deploy.perception.TagGoals`) asked at each reset, after the object is placed
+    and before the arms move to the start pose (first to its ``park`` targets [2, 3], world,
+    through the gate, when it has them: out of the camera's view); its goals are the
+    observations' ``desired_goal`` (success is judged against the drawn goal when ``truth`` is
+    given, else against those). Each observation carries ``perception_fault``: the goal
+    source's fault of the episode, else the object reading's ``fault`` (a camera source), else
+    None; the loop holds while it is set."""
 
     def __init__(self, spec, arms, bases=None, objects=None, truth=None, safety=None,
-                 clock=time.perf_counter):
+                 clock=time.perf_counter, goals=None):
         self.spec, self.truth, self.clock = spec, truth, clock
         self.bases = nominal_bases() if bases is None else np.asarray(bases, float)
         self.inv = np.stack([invert(T) for T in self.bases])
@@ -599,6 +611,9 @@ class ArmsEnv:
         self.safety = safety_of_spec(spec) if safety is None else safety
         self.arms = GatedArms(arms, self.safety, self.bases, spec.dt, self.down)
         self.objects = objects if objects is not None else NoObject()
+        self.goals = goals
+        self._seen_goal: np.ndarray | None = None  # the goal the policy sees (goal source)
+        self._goal_fault: str | None = None
         self.config, self.task = spec.config, spec.task
         self.episode_length, self.dt = spec.episode_length, spec.dt
         self._target = spec.home_mocap.copy()
@@ -666,17 +681,20 @@ class ArmsEnv:
         rules = self.spec.rules
         judged = (arm, obj) if self.truth is None else self.truth()
         ag = np.asarray(rules.achieved_goal(*judged), np.float32)
+        seen = self._goal if self._seen_goal is None else self._seen_goal
+        goal = self._goal if self.truth is not None else seen
         res = StepResult(observation=np.asarray(obs, np.float32), achieved_goal=ag,
-                         desired_goal=self._goal.copy(), link_points=arm["link_points"],
+                         desired_goal=seen.copy(), link_points=arm["link_points"],
                          target=self._target.copy(),
-                         success=bool(rules.success(np, ag, self._goal)),
-                         goal_distance=np.asarray(rules.goal_distance(np, ag, self._goal),
+                         success=bool(rules.success(np, ag, goal)),
+                         goal_distance=np.asarray(rules.goal_distance(np, ag, goal),
                                                   np.float32),
                          arm_clearance=float(obs_lib.arm_clearance(np, arm["link_points"])),
                          step=self._t)
         res.captured_at = r.captured_at
         res.read_s = t1 - t0
         res.frozen_s = self._frozen_s(r, t1)
+        res.perception_fault = self._goal_fault or obj.get("fault")
         return res
 
     # the env API
@@ -690,6 +708,15 @@ class ArmsEnv:
         self._goal = np.asarray(goal, np.float32).reshape(NUM_ARMS, 3).copy()
         self._qpos = np.asarray(qpos, np.float32)
         self.objects.reset(self._qpos)
+        self._seen_goal, self._goal_fault = None, None
+        if self.goals is not None:  # read with the arms parked out of the view, if asked
+            park = getattr(self.goals, "park", None)
+            if park is not None:
+                self.arms.home(self.to_base_poses(park))
+            # the arms hold where they are between the frames (the controllers' watchdog)
+            seen, self._goal_fault = self.goals.read(self._goal, keepalive=self._hold)
+            seen = np.asarray(seen, np.float32).reshape(NUM_ARMS, 3)
+            self._seen_goal = np.where(np.isfinite(seen), seen, self.spec.home_mocap)
         self._target = self.spec.home_mocap.copy()
         self.arms.home(self.to_base_poses(self._target))
         self._t, self._fingers_t = 0, 0
@@ -697,6 +724,11 @@ class ArmsEnv:
         res = self.observe()
         self._q = np.array(self._joints, float)
         return res
+
+    def _hold(self) -> None:
+        """Sends the last commanded poses again through the gate (the arms stay put)."""
+        if self.arms.last_pose is not None:
+            self.arms.servo(self.arms.last_pose)
 
     def finger_ctrl(self, finger_cmd):
         return self.spec.finger_ctrl(finger_cmd)
@@ -742,7 +774,12 @@ class ArmsEnv:
         return self._goal.copy()
 
     def close(self):
-        self.arms.close()
+        try:
+            self.arms.close()
+        finally:
+            for source in (self.objects, self.goals):
+                if hasattr(source, "close"):
+                    source.close()
 
 
 def safety_of_spec(spec):

@@ -56,6 +56,8 @@ others then fit within the limits and its own residual (to their fit) exceeds th
 allowed."""
 MODELS = ("yaw", "full")
 MARKER = "# -- calibration (written by daddpg-calibrate; rerun it to replace this block) --"
+CAMERA_MARKER = ("# -- camera (written by daddpg-calibrate --camera; rerun it to replace this "
+                 "block) --")
 
 
 class CalibrationError(ValueError):
@@ -325,17 +327,38 @@ def write_calibration(path, calibration: dict) -> RobotLimits:
     (TOML: a block at the end, replacing an earlier one; JSON: the ``calibration`` field) and
     returns the limits read back. LimitsError (one line) if the result does not load; the file
     is then left as it was."""
+    return _write_block(path, "calibration", calibration, MARKER, _toml_block(calibration))
+
+
+def _without_block(text: str, marker: str) -> str:
+    """``text`` without the block that starts at ``marker`` (up to the next block written by
+    daddpg-calibrate, or the end)."""
+    if marker not in text:
+        return text.rstrip("\n")
+    head, rest = text.split(marker, 1)
+    ends = [rest.find(m) for m in (MARKER, CAMERA_MARKER) if m != marker and m in rest]
+    tail = rest[min(ends):] if ends else ""
+    return (head.rstrip("\n") + ("\n\n" + tail if tail else "")).rstrip("\n")
+
+
+def _write_block(path, key: str, value: dict, marker: str, block: str,
+                 drop_table: str | None = None) -> RobotLimits:
+    """Writes ``value`` as the field ``key`` of the limits file ``path`` (TOML: ``block`` at
+    the end, replacing the earlier block of ``marker``; JSON: the field) and returns the
+    limits read back; LimitsError (one line) if the result does not load (the file is then
+    left as it was)."""
     path = os.fspath(path)
     RobotLimits.load(path)  # a valid limits file to start from
     with open(path, encoding="utf-8") as f:
         old = f.read()
     if path.lower().endswith(".json"):
         d = json.loads(old)
-        d["calibration"] = calibration
+        d[key] = value
         new = json.dumps(d, indent=2) + "\n"
     else:
-        head = old.split(MARKER, 1)[0].rstrip("\n")
-        new = head + "\n\n" + _toml_block(calibration)
+        text = _without_block(old, marker)
+        new = (text if drop_table is None else _without_table(text, drop_table)).rstrip(
+            "\n") + "\n\n" + block
     root, ext = os.path.splitext(path)
     tmp = f"{root}.tmp{ext}"
     with open(tmp, "w", encoding="utf-8") as f:
@@ -344,9 +367,44 @@ def write_calibration(path, calibration: dict) -> RobotLimits:
         limits = RobotLimits.load(tmp)
     except LimitsError as e:
         os.remove(tmp)
-        raise LimitsError(f"the calibration cannot be written into {path!r}: {e}") from None
+        raise LimitsError(f"the {key} cannot be written into {path!r}: {e}") from None
     os.replace(tmp, path)
     return limits
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+    return repr(v)
+
+
+def write_camera(path, camera: dict, report=()) -> RobotLimits:
+    """Writes the ``[camera]`` table ``camera`` (its keys as `camera_from_limits` reads them)
+    into the limits file ``path`` (TOML: a block at the end, replacing an earlier one or a
+    hand-written ``[camera]`` table, with the lines of ``report`` as comments; JSON: the
+    ``camera`` field) and returns the limits
+    read back; LimitsError (one line) if the result does not load."""
+    lines = [CAMERA_MARKER, "# The camera's pose in the world frame (position, m; rotvec: "
+             "world <- camera, OpenCV's frame, rad),", "# from the tag board on the table:",
+             *(f"#   {line.strip()}" for line in report), "", "[camera]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in camera.items()]
+    return _write_block(path, "camera", dict(camera), CAMERA_MARKER, "\n".join(lines) + "\n",
+                        drop_table="camera")
+
+
+def _without_table(text: str, name: str) -> str:
+    """``text`` without a hand-written TOML table ``[name]`` (its header up to the next
+    table's; the block written in its place carries its keys)."""
+    out, inside = [], False
+    for line in text.splitlines(keepends=True):
+        head = line.strip()
+        if head.startswith("[") or head in (MARKER, CAMERA_MARKER):
+            inside = head.split("#", 1)[0].strip() == f"[{name}]"
+        if not inside:
+            out.append(line)
+    return "".join(out)
 
 
 # ---------------------------------------------------------------- the readings ---------------

@@ -89,6 +89,12 @@ class RobotLimits:
     deadline) before the run ends (exit 4; the arms hold meanwhile); watchdog: the controllers'
     own watchdog (an arm stops when the client has not kicked it for this long; at least
     ``deadline + control_period`` is used). Each of these four is in (0, 2] s.
+    camera: the camera's table (``[camera]``: kind, mount or calibrated pose, image size,
+    intrinsics, target layout; `daddpg_jax.deploy.camera.config.camera_from_limits`, written by
+    ``daddpg-calibrate --camera``; None: the nominal simulated mount); max_frame_age: a camera
+    frame older than this when it is read holds the arms (s); max_object_lost: the object
+    not seen for longer than this holds the arms (s); both in (0, 10] s, measured on the
+    camera's clock (simulated seconds for the simulated camera).
     """
 
     workspace_low: tuple = DEFAULT_BOX_LOW
@@ -110,6 +116,9 @@ class RobotLimits:
     call_timeout: float = 0.5
     max_reading_gap: float = 0.5
     watchdog: float = 0.2
+    camera: Mapping | None = None
+    max_frame_age: float = 0.15
+    max_object_lost: float = 0.5
     source: str = "built-in defaults"
 
     def __post_init__(self):
@@ -145,6 +154,10 @@ class RobotLimits:
                 high=MAX_COORD, low_open=True)
         _number("calibration_max_base_angle_deg", self.calibration_max_base_angle_deg, low=0.0,
                 high=180.0, low_open=True)
+        for name in ("max_frame_age", "max_object_lost"):
+            _number(name, getattr(self, name), low=0.0, high=10.0, low_open=True)
+        if self.camera is not None:
+            object.__setattr__(self, "camera", _camera(self.camera))
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -396,6 +409,22 @@ def _calibration(v) -> dict:
             row["rms_mm"] = _number(f"calibration.{arm}.rms_mm", t["rms_mm"], low=0.0)
         out[arm] = row
     return out
+
+
+def _camera(v) -> dict:
+    """The ``[camera]`` table, checked by the camera package (`camera_from_limits`)."""
+    if not isinstance(v, Mapping):
+        raise LimitsError(f"camera must be a table, got {type(v).__name__}")
+    try:  # lazy: the camera package needs OpenCV (the optional extra [camera])
+        from daddpg_jax.deploy.camera.config import CameraConfigError, camera_from_limits
+    except ImportError as e:
+        raise LimitsError(f"the [camera] table needs OpenCV (pip install 'daddpg-jax[camera]'): "
+                          f"{e}") from None
+    try:
+        camera_from_limits({"camera": v})
+    except CameraConfigError as e:
+        raise LimitsError(str(e)) from None
+    return dict(v)
 
 
 def _box(name: str, v) -> np.ndarray:

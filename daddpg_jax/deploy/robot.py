@@ -338,10 +338,11 @@ class Pacer:
 
 
 def _episode_summary(res, stops, errors, clear_min, rtts, complete=True, stale=0,
-                     step_ms=None) -> dict:
+                     step_ms=None, perception=0) -> dict:
     step_ms = step_ms or [0.0]
     return dict(success=bool(res.success), final_distance=res.goal_distance.tolist(),
-                stops=stops, stale=stale, errors=errors[:5], min_arm_clearance=float(clear_min),
+                stops=stops, stale=stale, perception=perception, errors=errors[:5],
+                min_arm_clearance=float(clear_min),
                 rtt_ms_p50=float(np.percentile(rtts, 50)), rtt_ms_max=float(np.max(rtts)),
                 step_ms_p99=float(np.percentile(step_ms, 99)), step_ms_max=float(max(step_ms)),
                 step_ms=[round(float(x), 3) for x in step_ms], complete=complete)
@@ -468,9 +469,11 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     A period whose arm reading is unusable (`_reading_fault`: slower than the deadline, or the
     controllers' clocks frozen for longer than ``max_observation_age``) holds both arms without
     asking the service (``stale``); readings unusable for longer than ``max_reading_gap`` s
-    raise `ReadingsLost`. interrupted: callable returning None or (signal, reason), asked at
-    every period's start; a request raises `Interrupted` (the episode's summary in
-    ``.episode``).
+    raise `ReadingsLost`. An observation's ``perception_fault`` (`arms.ArmsEnv`: a camera frame
+    too old, a tag not seen, the object lost) holds both arms too, without asking the service
+    and without a missed deadline (``perception``; the episode counts as a failure).
+    interrupted: callable returning None or (signal, reason), asked at every period's start;
+    a request raises `Interrupted` (the episode's summary in ``.episode``).
     perturbation: a ``mjx_envs.perturb.Perturbation`` (the trainer's observation noise,
     dropout, bias, period and action latency, drawn from ``perturb_rng``) applied to what the
     policy sees and sends; the safety layer sees the true state. action_history: the policy's k
@@ -491,7 +494,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     perturb_rng = np.random.default_rng() if perturb_rng is None else perturb_rng
     seen, carry = pipe.start(perturb_rng, res.observation)
     ctrl = env.finger_ctrl(np.zeros(2, np.float32))
-    stops, stale, rtts, errors, step_ms = 0, 0, [], [], []
+    stops, stale, held, rtts, errors, step_ms = 0, 0, 0, [], [], []
     clear_min = res.arm_clearance
     watch = _ReadingWatch(deadline, max_observation_age, max_reading_gap)
     if pacer is not None:
@@ -504,7 +507,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             captured = getattr(res, "captured_at", None)
             captured = clock() if captured is None else float(captured)
             t0 = clock()
-            fault = watch.check(res, t0)
+            fault, kind = _unusable(watch, res, t0)
             answer, info = ((None, {"error": fault}) if fault is not None
                             else client.act(seen, res.desired_goal))
             t_answer = clock()
@@ -512,13 +515,12 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             rtts.append(rtt * 1e3)
             action, why, reason = _judge(safety, answer, info, rtt, deadline, age,
                                          max_observation_age)
-            if fault is not None:
-                reason = "stale"
+            reason = kind or reason
             if why is not None:
-                stale += reason == "stale"
+                stale, held = stale + (reason == "stale"), held + (reason == "perception")
                 errors.append(why)
                 decision = safety.hold(env.target, reason=reason)
-                stops += 1
+                stops += reason != "perception"
                 carry = pipe.hold(carry)
             else:
                 action, carry = pipe.act(carry, action)
@@ -533,15 +535,27 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
             log["steps"][-1]["step_ms"] = round(step_ms[-1], 3)
             seen, carry = pipe.observe(carry, res.observation)
             clear_min = min(clear_min, res.arm_clearance)
-            _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")
+            if kind != "perception":  # a perception hold is no outage of the service
+                _report(monitor, why, t0, f"episode {episode + 1}, step {step + 1}")
     except (ServiceOutage, Interrupted, ReadingsLost) as e:
         e.episode = log["summary"] = _episode_summary(
             res, stops, errors, clear_min, rtts or [0.0], complete=False, stale=stale,
-            step_ms=step_ms)
+            step_ms=step_ms, perception=held)
         raise
     log["summary"] = _episode_summary(res, stops, errors, clear_min, rtts, stale=stale,
-                                      step_ms=step_ms)
+                                      step_ms=step_ms, perception=held)
     return log["summary"]
+
+
+def _unusable(watch, res, now):
+    """(why the period holds without asking the service, the hold's reason) or (None, None):
+    an unusable arm reading (``stale``, `_ReadingWatch`), else the observation's
+    ``perception_fault`` (``perception``)."""
+    fault = watch.check(res, now)
+    if fault is not None:
+        return fault, "stale"
+    sight = getattr(res, "perception_fault", None)
+    return (sight, "perception") if sight else (None, None)
 
 
 def replay_episode(env, log: dict):
@@ -572,7 +586,9 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
     excluded from the results: ``episodes`` counts the others, over which ``success_rate`` and
     ``mean_final_distance`` are computed (None when there are none); ``episodes_run`` and
     ``excluded_episodes`` say how many ran and how many were left out. ``stops``, the smallest
-    arm gap and the round-trip times cover every episode run.
+    arm gap and the round-trip times cover every episode run. An episode held for perception
+    (``perception`` > 0: the camera's frame too old, a tag not seen, the object lost) is
+    counted, as a failure (``perception_held_episodes``; ``perception``: the periods held).
     """
     counted = [e for e in eps if e["stops"] == 0]
 
@@ -580,7 +596,7 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
         vals = [e[key] for e in among if key in e]
         return float(fn(vals)) if vals else None
 
-    n_ok = sum(e["success"] for e in counted)
+    n_ok = sum(e["success"] and not e.get("perception", 0) for e in counted)
     return dict(episodes=len(counted), episodes_run=len(eps),
                 excluded_episodes=len(eps) - len(counted),
                 success_rate=(n_ok / len(counted) if counted else None),
@@ -588,6 +604,8 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
                 mean_final_distance=stat(np.mean, "final_distance", counted),
                 stops=int(sum(e["stops"] for e in eps)),
                 stale=int(sum(e.get("stale", 0) for e in eps)),
+                perception=int(sum(e.get("perception", 0) for e in eps)),
+                perception_held_episodes=sum(bool(e.get("perception", 0)) for e in counted),
                 step_ms_p99=_pooled(eps, "step_ms", lambda x: np.percentile(x, 99)),
                 step_ms_max=_pooled(eps, "step_ms", np.max),
                 outages=0 if monitor is None else monitor.outages,
@@ -621,6 +639,9 @@ def format_summary(out: Mapping) -> str:
                      f"missed deadline")
     lines.append(f"deadlines missed: {out['stops']} ({out.get('stale', 0)} stale "
                  f"observations) in {out['outages']} outage(s)")
+    if out.get("perception"):
+        lines.append(f"perception holds: {out['perception']} control period(s) in "
+                     f"{out['perception_held_episodes']} episode(s), counted as failures")
     counts = out.get("safety_counts") or {}
     rules = ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) or "none"
     lines.append(f"safety interventions (control periods): {rules}")

@@ -15,13 +15,14 @@ import re
 import signal
 import time
 
-from daddpg_jax.deploy import server
+from daddpg_jax.deploy import perception, server
 from daddpg_jax.deploy.arms import ArmsError, ArmsStopped, ArmsUsageError
 from daddpg_jax.deploy.arms_factory import make_env
 from daddpg_jax.deploy.calibrate import CalibrationError, parse_base_error
 from daddpg_jax.deploy.client import read_token
 from daddpg_jax.deploy.gate import GateRefusal
 from daddpg_jax.deploy.limits import LimitsError, RobotLimits
+from daddpg_jax.deploy.recording import RecorderError, recorded
 from daddpg_jax.deploy.robot import Pacer, run_episodes
 from daddpg_jax.deploy.safety import SafetyFilter
 from mjx_envs import observation as obs_lib
@@ -176,10 +177,11 @@ def perturbation(task: str, items: list):
 
 def arms_env(kind: str, task_cfg, task: str, limits, hosts: str | None = None,
              dry_run: bool = False, base_error: str | None = None, exact: bool = True,
-             safety=None):
+             safety=None, sources=None):
     """The loop's env for --arms `kind` (daddpg_jax.deploy.arms_factory.make_env) behind the
     gate with `safety` (the SafetyLimits in force); `hosts` and `base_error` as the flags give
-    them; the connect and call timeouts and the watchdog from `limits`. Raises ArmsError."""
+    them; the connect and call timeouts and the watchdog from `limits`; `sources`: the camera's
+    (`daddpg_jax.deploy.perception.Perception`) or None. Raises ArmsError."""
     error = None
     if base_error:
         try:
@@ -191,7 +193,7 @@ def arms_env(kind: str, task_cfg, task: str, limits, hosts: str | None = None,
                     bases=limits.base_transforms(), hosts=hosts.split(",") if hosts else None,
                     dry_run=dry_run, base_error=error, exact=exact, safety=safety,
                     connect_timeout=limits.connect_timeout, call_timeout=limits.call_timeout,
-                    watchdog=watchdog)
+                    watchdog=watchdog, sources=sources)
 
 
 class SetupError(Exception):
@@ -245,10 +247,19 @@ def prepare(opt, report=print) -> Setup:
         except OSError as e:
             raise SetupError(f"cannot create --log directory {opt.log!r}: {e.strerror}") from None
     try:
+        sight = perception.from_options(opt, limits, task)
         env = arms_env(opt.arms, task_cfg, task, limits, hosts=opt.ur_hosts, dry_run=opt.dry_run,
-                       base_error=opt.sim_base_error, exact=not opt.float64, safety=safety)
+                       base_error=opt.sim_base_error, exact=not opt.float64, safety=safety,
+                       sources=sight)
     except ArmsError as e:  # ArmsUsageError: exit 2; the arms cannot be reached: 4
         raise SetupError(str(e), 2 if isinstance(e, ArmsUsageError) else 4) from None
+    except perception.PerceptionError as e:
+        raise SetupError(str(e)) from None
+    try:
+        env = recorded(env, getattr(opt, "rerun", None), safety, sight)
+    except RecorderError as e:
+        env.close()
+        raise SetupError(str(e)) from None
     return Setup(limits, safety, token, info, task, perturbed, env)
 
 
@@ -313,6 +324,9 @@ def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor
     client = server.PolicyClient(url, timeout=safety.deadline_s, token=token)
     pacer = None if fast else Pacer(limits.control_period, clock=monitor.clock)
     on_log = episode_logger(log_dir) if log_dir else None
+    record = getattr(env, "episode_log", None)  # a recorded run (--rerun)
+    if record is not None:
+        on_log = record if on_log is None else (lambda log, f=on_log: (f(log), record(log)))
     t0 = time.perf_counter()
     try:
         out = run_episodes(env, client, SafetyFilter(safety), episodes, seed=seed,

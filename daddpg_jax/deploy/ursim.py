@@ -364,22 +364,27 @@ def sim_ur_arms(env, period: float, offset=None, yaw=None, dry_run: bool = False
 
 def sim_ur_env(spec, cell_env, period: float, bases=None, offset=None, yaw=None,
                dry_run: bool = False, safety=None, call_timeout: float | None = None,
-               watchdog: float | None = None):
+               watchdog: float | None = None, sources=None):
     """`daddpg_jax.deploy.arms.ArmsEnv` of `URArms` on a simulated cell (``cell_env``, a
     `NumpyDualArmEnv` of the task) with its object source and ground truth; ``bases``: the robot
     side's world <- base transforms (default nominal), ``offset``/``yaw``: the cell's
-    calibration error; ``safety``: the gate's `SafetyLimits` (None: the simulator's own)."""
+    calibration error; ``safety``: the gate's `SafetyLimits` (None: the simulator's own);
+    ``sources``: called with the cell, (object source, goal source), either None for the
+    cell's own (`daddpg_jax.deploy.perception.Perception`: a camera)."""
     arms, cell, objects = sim_ur_arms(cell_env, period, offset, yaw, dry_run, call_timeout,
                                       watchdog)
-    return ArmsEnv(spec, arms, bases=bases, objects=objects, truth=cell.truth, safety=safety)
+    camera_objects, goals = (None, None) if sources is None else sources(cell)
+    return ArmsEnv(spec, arms, bases=bases, objects=camera_objects or objects,
+                   truth=cell.truth, safety=safety, goals=goals)
 
 
-def sim_env(spec, cell_env, bases=None, offset=None, yaw=None, safety=None):
+def sim_env(spec, cell_env, bases=None, offset=None, yaw=None, safety=None, sources=None):
     """`daddpg_jax.deploy.arms.ArmsEnv` of `SimArms` on a simulated cell (``cell_env``, a
     `NumpyDualArmEnv` of the task) with its object source and ground truth (``--arms sim``);
     ``bases``: the robot side's world <- base transforms (default nominal), ``offset``/``yaw``:
     the cell's calibration error (default none); ``safety``: the gate's `SafetyLimits` (None:
-    the simulator's own)."""
+    the simulator's own); ``sources``: as `sim_ur_env`'s."""
     cell = SimCell(cell_env, offset, yaw)
-    return ArmsEnv(spec, SimArms(cell), bases=bases, objects=SimObjectSource(cell),
-                   truth=cell.truth, safety=safety)
+    objects, goals = (None, None) if sources is None else sources(cell)
+    return ArmsEnv(spec, SimArms(cell), bases=bases, objects=objects or SimObjectSource(cell),
+                   truth=cell.truth, safety=safety, goals=goals)
