@@ -26,7 +26,7 @@ from daddpg_jax.deploy.recording import RecorderError, recorded
 from daddpg_jax.deploy.robot import Pacer, run_episodes
 from daddpg_jax.deploy.safety import SafetyFilter
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, schema, settings
+from mjx_envs import perturb, registry, schema
 
 COMPARED = ("scene", "episode_length", "timestep", "n_substeps", "max_delta", "lock_fingers",
             "locked_opening", "finger_stroke", "action_history")
@@ -105,7 +105,7 @@ def robot_limits(path: str | None, fast: bool = False, speed_scale: float = 1.0,
 def robot_task(task: str):
     """The robot's own settings of ``task`` (a mjx_envs.settings config): the task installed
     with this package, standard episodes (the training-only options off)."""
-    return settings.task_config(task, **settings.test_overrides(task))
+    return registry.task_config(task, **registry.test_overrides(task))
 
 
 def check_model(info, own) -> None:
@@ -155,7 +155,7 @@ def served_policy(url: str, limits, task, sha256: str | None, token: str | None)
         raise ServiceError(f"the served policy's SHA-256 {info.get('policy_sha256')!r} is not "
                            f"the pinned {sha256}")
     served = info.get("task")
-    if not isinstance(served, str) or served not in settings.TASK_SETTINGS:
+    if not isinstance(served, str) or served not in registry.TASK_SETTINGS:
         raise ServiceError(f"the service serves a policy of a task {str(served)[:40]!r} this "
                            f"robot does not have")
     own = robot_task(served)
@@ -165,13 +165,13 @@ def served_policy(url: str, limits, task, sha256: str | None, token: str | None)
 
 def perturbation(task: str, items: list):
     """The Perturbation of --perturb KEY=VALUE items (exact values); raises ConfigError."""
-    cls = type(settings.default_config(task))
+    cls = type(registry.default_config(task))
     over = schema.parse_overrides(cls, items, "--perturb")
     bad = sorted(set(over) - set(perturb.FIELDS))
     if bad:
         raise schema.ConfigError(f"--perturb: {', '.join(bad)} is not a perturbation; choose "
                                  f"from {', '.join(perturb.FIELDS)}")
-    cfg = settings.task_config(task, **over, perturb_exact=True)   # validates the values
+    cfg = registry.task_config(task, **over, perturb_exact=True)   # validates the values
     return perturb.Perturbation.from_config(cfg)
 
 

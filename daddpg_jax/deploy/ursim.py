@@ -41,7 +41,7 @@ from daddpg_jax.deploy.arms import (
 )
 from mjx_envs import observation as obs_lib
 from mjx_envs import randomize
-from mjx_envs.settings import OBJECTS
+from mjx_envs.registry import OBJECTS
 
 HOME_TOLERANCE = 0.002
 """moveL: the cell steps until each TCP is within this of its target, m"""
