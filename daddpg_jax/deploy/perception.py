@@ -262,7 +262,7 @@ class Perception:
 
             if geometry_for_task(self.task) is None:
                 raise PerceptionError(f"--objects {self.objects}: the {self.task!r} task has "
-                                      f"no object for the camera (push, pickup, pot)")
+                                      f"no object for the camera")
         self.config = camera_config(self.limits, self.camera_kind)
 
     def __call__(self, cell=None):
@@ -435,8 +435,8 @@ def calibrate_camera(limits, kind: str | None = None, frames: int = 5, sim_error
 
 
 def _board_frames(cfg, n: int, sim_error=None) -> list:
-    """``n`` frames of the board from the camera of ``cfg`` (the simulated one: the reach
-    cell at home, the camera at the limits' mount moved by ``sim_error``, no noise)."""
+    """``n`` frames of the board from the camera of ``cfg`` (the simulated one: the default
+    task's cell at home, the camera at the limits' mount moved by ``sim_error``, no noise)."""
     from daddpg_jax.deploy.camera.factory import make_camera  # lazy: OpenCV, MuJoCo
 
     if cfg.kind == "sim":
@@ -444,7 +444,7 @@ def _board_frames(cfg, n: int, sim_error=None) -> list:
         from daddpg_jax.deploy.camera.sim_camera import SensorModel, SimCamera
         from mjx_envs.numpy_env import NumpyDualArmEnv
 
-        env = NumpyDualArmEnv(task="reach")
+        env = NumpyDualArmEnv()  # the default task's cell: no object in front of the board
         env.reset(np.random.default_rng(0))
         mount = cfg.T_world_cam if sim_error is None else moved_pose(cfg.T_world_cam, sim_error)
         cam = SimCamera(env, _replace_pose(cfg, mount), SensorModel(lighting=(1.0, 1.0),

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from mjx_envs import observation as obs_lib
+from mjx_envs import registry
+from mjx_envs.settings import LiftTaskConfig
 
 _LAYOUT = obs_lib.obs_layout()
 GRASP_DZ = -0.005
@@ -94,9 +96,12 @@ class GraspClient:
 
 
 def client_for(task: str):
-    """The stand-in for ``task``: `ReachClient` (reach), `GraspClient` (pickup, pot)."""
-    if task == "reach":
+    """The stand-in for ``task``: `ReachClient` for a task without an object, `GraspClient` for
+    a lifting task (its settings are a `mjx_envs.settings.LiftTaskConfig`)."""
+    cfg = registry.default_config(task)
+    if task not in registry.OBJECTS:
         return ReachClient()
-    if task in ("pickup", "pot"):
+    if isinstance(cfg, LiftTaskConfig):
         return GraspClient()
-    raise ValueError(f"no stand-in controller for task {task!r} (reach, pickup, pot)")
+    raise ValueError(f"no stand-in controller for task {task!r} (an object task that lifts "
+                     f"nothing)")

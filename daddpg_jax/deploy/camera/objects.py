@@ -40,6 +40,7 @@ from daddpg_jax.deploy.camera.frames import (
     yaw_of,
 )
 from daddpg_jax.deploy.camera.tags import TagDetector, tag_poses
+from mjx_envs import registry
 
 GREEN = (0.15, 0.62, 0.22, 1.0)
 MAGENTA = (0.80, 0.12, 0.70, 1.0)
@@ -103,7 +104,10 @@ def geometry_for_scene(scene: str) -> ObjectGeometry | None:
 
 
 def geometry_for_task(task: str) -> ObjectGeometry | None:
-    return {"push": BAR, "pickup": BAR, "pot": POT}.get(task)
+    """The object of a registered task, by its body (`mjx_envs.registry.OBJECTS`; None: no
+    object, or one the camera does not know)."""
+    obj = registry.OBJECTS.get(task)
+    return None if obj is None else next((g for g in GEOMETRIES if g.body == obj[1]), None)
 
 
 @dataclass
