@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjx_envs import limit_rules, registry, rules
 from mjx_envs import observation as obs_lib
-from mjx_envs import registry, rules
 from mjx_envs.model import home_state, load_model  # noqa: F401  (load_model re-exported)
 from mjx_envs.physics.backends import default_physics, make_backend
 from mjx_envs.settings import TaskConfig
@@ -88,6 +88,7 @@ class DualArmEnv:
         self._ws_low = np.asarray(cfg.workspace_low, np.float32)
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
         self.rules = registry.make_rules(self.task_name, cfg, self.mj_model)
+        self.limits = limit_rules.from_config(jnp, cfg)  # the robot's rules (None: off)
         self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
         # the nominal model's engine (`mjx_envs.wrappers.Randomize` replaces it by one that
         # takes per-env model parameters)
@@ -128,6 +129,8 @@ class DualArmEnv:
             opening = jnp.full((NUM_ARMS,), cfg.locked_opening, jnp.float32)
         else:
             opening = (finger_cmd + 1.0) * 0.5 * cfg.finger_stroke
+        if self.limits is not None:  # the robot's finger range
+            opening = limit_rules.finger_opening(jnp, self.limits, opening)
         return jnp.repeat(opening, 2)  # two finger servos per arm: [l1, l2, r1, r2]
 
     def _observe(self, data, desired_goal, step):
@@ -175,6 +178,19 @@ class DualArmEnv:
         workspace boxes."""
         return jnp.clip(target + delta, self._ws_low, self._ws_high)
 
+    def limit_targets(self, state: State, current, target):
+        """``target`` [2, 3] after the robot's rules (`mjx_envs.limit_rules`: workspace clamp,
+        speed cap and arm clearance from ``current``, with the link points and tool positions
+        measured in ``state``), as the robot client's safety layer moves them; ``target`` itself
+        without limits (``robot_limits = ()``)."""
+        if self.limits is None:
+            return target
+        links, tool = limit_rules.measured(jnp, self.sensors, self.backend.sensordata(state.data),
+                                           self.dt)
+        t, _, _ = limit_rules.apply(jnp, self.limits, current, target, links, tool,
+                                    jnp.zeros((NUM_ARMS,), jnp.float32))
+        return t
+
     def advance(self, state: State, target, finger_cmd, params=None) -> State:
         """One control step towards the true Cartesian ``target`` [2, 3] with finger commands
         [2] (``params`` as in `launch`)."""
@@ -194,8 +210,9 @@ class DualArmEnv:
 
     def step(self, state: State, action) -> State:
         a = clip_action(action)
-        target = self.backend.mocap_pos(state.data)[:NUM_ARMS]
-        target = self.move_targets(target, self.config.max_delta * a[:, :3])
+        current = self.backend.mocap_pos(state.data)[:NUM_ARMS]
+        target = self.move_targets(current, self.config.max_delta * a[:, :3])
+        target = self.limit_targets(state, current, target)
         return self.advance(state, target, a[:, 3])
 
     def render(self, state: State, width: int = 640, height: int = 480, camera=None):

@@ -45,8 +45,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from mjx_envs import limit_rules, perturb, registry, rules
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, registry, rules
 from mjx_envs import settings as settings_lib
 from mjx_envs.model import home_state, load_model
 from mjx_envs.schema import replace_config
@@ -112,6 +112,7 @@ class NumpyDualArmEnv:
         self.goal_high = np.asarray(cfg.goal_high, np.float32)
         self.threshold = float(cfg.distance_threshold)
         self.sensors = obs_lib.SensorLayout.from_model(self.model)
+        self.limits = limit_rules.from_config(np, cfg)  # the robot's rules in `step` (None: off)
         self.home_qpos, self.home_mocap = home_state(self.model)
         self._goal = np.zeros((NUM_ARMS, 3), np.float32)
         self._set_state(self.home_qpos)
@@ -198,8 +199,15 @@ class NumpyDualArmEnv:
         return target.astype(np.float32), self.finger_ctrl(a[:, 3])
 
     def step(self, action) -> StepResult:
-        """One control step from a policy action [8] in [-1, 1] (clipped), as the trainer's env."""
+        """One control step from a policy action [8] in [-1, 1] (clipped), as the trainer's env
+        (under the config's ``robot_limits`` too; the robot client applies its own instead:
+        `command_targets`, its safety layer, `step_targets`)."""
         target, ctrl = self.command_targets(action)
+        if self.limits is not None:  # as the trainer's env under robot_limits
+            links, tool = limit_rules.measured(np, self.sensors, self._sens, self.dt)
+            target, _, _ = limit_rules.apply(np, self.limits, self._target, target, links, tool,
+                                             np.zeros((NUM_ARMS,), np.float32))
+            ctrl = limit_rules.finger_opening(np, self.limits, ctrl)
         return self.step_targets(target, ctrl)
 
     def step_targets(self, target, ctrl) -> StepResult:

@@ -21,7 +21,7 @@ from daddpg_jax.algo.config import (
     robust_env,
 )
 from daddpg_jax.variants import ALGOS, VARIANTS
-from mjx_envs import registry, schema, settings
+from mjx_envs import limit_rules, registry, schema, settings
 from mjx_envs.schema import ConfigError
 
 FIELD_FLAGS = ("algo", "her", "physics", "seed", "task_module")
@@ -55,6 +55,15 @@ FLAGS = (
     ("--physics", dict(choices=PHYSICS, default=None,
                        help="physics engine: auto = MJX on an accelerator, MuJoCo C engine on "
                             "CPU")),
+    ("--limits", dict(metavar="FILE", default=None,
+                      help="train under a robot limits file (.toml/.json, daddpg-robot-client "
+                           "--limits): every env applies its workspace boxes, speed cap, arm "
+                           "clearance and finger range to the actions as the robot client's "
+                           "safety layer will (mjx_envs/limit_rules.py); the values are "
+                           "recorded (env override robot_limits) and kept by --resume")),
+    ("--speed-scale", dict(type=float, default=None, metavar="S",
+                           help="with --limits: scale the file's max_speed by S in (0, 1] "
+                                "(as daddpg-robot-client --speed-scale; default 1)")),
     # the run directory (cli.train.resolve, running.run_dirs)
     ("--out", dict(default=None,
                    help="run directory (default runs/<task>_<algo>_s<seed>_<time>); must be "
@@ -197,6 +206,7 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
     cfg = cfg.replace(**_field_overrides(args))
     env_cls = type(registry.default_config(cfg.task))
     env_over.update(schema.parse_overrides(env_cls, args.env, "--env"))
+    _apply_limits(args, cfg.task, env_over)
     registry.task_config(cfg.task, **env_over)   # validates the env fields together
     if cfg.n_demos > 0:
         _check_demos(cfg.task)
@@ -238,3 +248,44 @@ def _check_demos(task: str) -> None:
     if task not in scripted.POLICIES:
         raise ConfigError(f"--demos: task {task!r} has no scripted controller "
                           f"(available: {', '.join(sorted(scripted.POLICIES))})")
+
+
+def limits_values(path: str, speed_scale: float | None, task: str, env_over: dict) -> tuple:
+    """The ``robot_limits`` env setting (`mjx_envs.limit_rules.FLAT_SIZE` numbers) of a robot
+    limits file at ``speed_scale``: ConfigError (one line) for an unreadable file, a control
+    period other than the task's or a task the file does not allow."""
+    # lazy: the robot side's reader (NumPy), loaded only when --limits is given
+    from daddpg_jax.deploy.limits import LimitsError, RobotLimits
+
+    try:
+        limits = RobotLimits.load(path)
+        safety = limits.safety_limits(1.0 if speed_scale is None else speed_scale)
+    except LimitsError as e:
+        raise ConfigError(f"--limits: {e}") from None
+    env = registry.task_config(task, **{k: v for k, v in env_over.items()
+                                        if k != "robot_limits"})
+    dt = float(env.timestep) * int(env.n_substeps)
+    if abs(limits.control_period - dt) > 1e-9 + 1e-6 * dt:
+        raise ConfigError(f"--limits: the file's control period {limits.control_period:g} s is "
+                          f"not the task's {dt:g} s")
+    if limits.task and limits.task != task:
+        raise ConfigError(f"--limits: the file is for task {limits.task!r}, not {task!r}")
+    return limit_rules.Limits(safety.workspace_low, safety.workspace_high, safety.max_step,
+                              safety.min_clearance, safety.finger_low,
+                              safety.finger_high).flat()
+
+
+def _apply_limits(args, task: str, env_over: dict) -> None:
+    """--limits / --speed-scale into ``env_over`` (a resumed run keeps its recorded limits:
+    --limits must give the same values)."""
+    path, scale = getattr(args, "limits", None), getattr(args, "speed_scale", None)
+    if path is None:
+        if scale is not None:
+            raise ConfigError("--speed-scale needs --limits")
+        return
+    values = limits_values(path, scale, task, env_over)
+    recorded = tuple(env_over.get("robot_limits", ()) or ())
+    if getattr(args, "resume", None) and tuple(recorded) != values:
+        raise ConfigError("--resume: --limits differs from the run's recorded limits; start a "
+                          "new run instead")
+    env_over["robot_limits"] = values

@@ -106,11 +106,14 @@ def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
 
 
 def load_policy(run_dir: str, step: int | None = None, physics: str | None = None,
-                best: bool = False, physics_version: int | None = None) -> Policy:
+                best: bool = False, physics_version: int | None = None,
+                robot_limits: tuple | None = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest), or with
     ``best`` the run's best checkpoint (the epoch of its best test success). The env simulates
     the physics version the run was trained on, or ``physics_version`` (one warning line when
-    that acts unlike the run's)."""
+    that acts unlike the run's). ``robot_limits``: the env setting of a robot limits file
+    (`daddpg_jax.algo.resolve.limits_values`), applied to every action instead of the run's
+    own (None: the run's; ``()``: none)."""
     # lazy: these import JAX and MuJoCo (daddpg-evaluate --help stays JAX-free)
     from daddpg_jax.algo.train import make_train_fns
     from daddpg_jax.running import checkpoint as ckpt
@@ -133,6 +136,8 @@ def load_policy(run_dir: str, step: int | None = None, physics: str | None = Non
         ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version,
                           engine=cfg.physics if cfg.physics in settings.ENGINES else None)
         overrides["physics_version"] = int(physics_version)
+    if robot_limits is not None:
+        overrides["robot_limits"] = tuple(robot_limits)
     env = make_env(cfg, overrides)
     fns = make_train_fns(env, cfg)
     try:   # the newest readable checkpoint (a warning for each unreadable newer one)

@@ -27,7 +27,9 @@ import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (below)
 
+from daddpg_jax.algo import resolve  # noqa: E402
 from daddpg_jax.analysis import engines, evaluation, perturbation  # noqa: E402
+from daddpg_jax.running import run_dirs  # noqa: E402
 from mjx_envs.schema import ConfigError  # noqa: E402
 from mjx_envs.settings import PHYSICS  # noqa: E402
 
@@ -53,6 +55,12 @@ def build_parser():
         help="simulate physics version N (1 to the current one, "
              "mjx_envs.settings.PHYSICS_VERSION) instead of the one the run was trained on "
              "(default, recorded in its config.json); e.g. an older run on today's physics")
+    add("--limits", metavar="FILE", default=None,
+        help="evaluate through a robot limits file's rules (daddpg-robot-client --limits): "
+             "every action passes its workspace boxes, speed cap, arm clearance and finger "
+             "range, as the robot client's safety layer applies them")
+    add("--speed-scale", type=float, default=None, metavar="S",
+        help="with --limits: its max_speed x S, S in (0, 1] (default 1)")
     add("--divergence", metavar="OUT_DIR", default=None,
         help="with two engines: write OUT_DIR/divergence.csv and .png (object and grip-point "
              "distances between the engines' closed-loop trajectories per control step)")
@@ -131,15 +139,27 @@ def _run(policies: dict, args, opts: dict) -> int:
     return 0
 
 
+def _limits(args) -> tuple | None:
+    """The ``robot_limits`` env setting of --limits / --speed-scale (None without --limits)."""
+    if args.limits is None:
+        if args.speed_scale is not None:
+            raise ConfigError("--speed-scale needs --limits")
+        return None
+    cfg, env_over = run_dirs.recorded(args.run_dir)
+    return resolve.limits_values(args.limits, args.speed_scale, cfg.task, env_over)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         names = engines.check_request(args.physics, args.episodes, args.chunk, args.watchdog,
                                       args.perturb, args.out, args.video, args.physics_version,
                                       args.divergence)
+        limits = _limits(args)
         policies = {name: evaluation.load_policy(args.run_dir, args.step, physics=name,
                                                  best=args.best,
-                                                 physics_version=args.physics_version)
+                                                 physics_version=args.physics_version,
+                                                 robot_limits=limits)
                     for name in names}
         return _run(policies, args, evaluation.chunk_options(args.chunk, args.watchdog))
     except (ConfigError, evaluation.NoCheckpointError) as e:

@@ -64,6 +64,9 @@ def _parser() -> argparse.ArgumentParser:
              "daddpg_jax/deploy/limits/ur3_cell.toml)")
     add("--speed-scale", type=float, default=1.0,
         help="scale the speed cap by this factor in (0, 1] (first runs: 0.25)")
+    add("--require-trained-limits", action="store_true",
+        help="refuse the run (exit 2) unless the policy was trained under limits no looser "
+             "than the robot's (daddpg-train --limits)")
     add("--deadline-ms", type=float, default=None,
         help="tighten the limits' deadline of each answer, ms")
     add("--max-observation-age-ms", type=float, default=None,

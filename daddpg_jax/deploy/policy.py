@@ -498,7 +498,8 @@ class NumpyPolicy:
                     checkpoint_step=(m.get("source") or {}).get("checkpoint_step")
                     if isinstance(m.get("source") or {}, dict) else None,
                     policy_sha256=self.sha256,
-                    physics_version=m.get("physics_version", 1))
+                    physics_version=m.get("physics_version", 1),
+                    trained_limits=m.get("trained_limits"))
 
     # -- inference ----------------------------------------------------------------------------
 

@@ -15,7 +15,7 @@ import re
 import signal
 import time
 
-from daddpg_jax.deploy import perception, server
+from daddpg_jax.deploy import perception, server, trained_limits
 from daddpg_jax.deploy.arms import ArmsError, ArmsStopped, ArmsUsageError
 from daddpg_jax.deploy.arms_factory import make_env
 from daddpg_jax.deploy.calibrate import CalibrationError, parse_base_error
@@ -238,8 +238,12 @@ def prepare(opt, report=print) -> Setup:
     try:
         info, task_cfg = served_policy(opt.server, limits, opt.task, sha, token)
         task = info["task"]
+        mismatch = trained_limits.check(info, safety, getattr(opt, "require_trained_limits",
+                                                              False))
+        if mismatch:
+            report(mismatch)
         perturbed = perturbation(task, opt.perturb) if opt.perturb else None
-    except (ServiceError, schema.ConfigError) as e:
+    except (ServiceError, ValueError) as e:  # ConfigError, --require-trained-limits
         raise SetupError(str(e)) from None
     if opt.log:
         try:

@@ -47,8 +47,8 @@ from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.deploy.policy import FORMAT_VERSION, write_policy_file
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running.runner import make_env, restore_readable
+from mjx_envs import limit_rules, schema
 from mjx_envs import observation as obs_lib
-from mjx_envs import schema
 from mjx_envs.registry import test_overrides
 from mjx_envs.settings import PHYSICS_VERSION
 
@@ -134,6 +134,8 @@ def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]
         # from a run directory)
         physics_version=int(settings.get("physics_version", PHYSICS_VERSION)),
     )
+    if settings.get("robot_limits"):  # trained under a robot limits file (daddpg-train --limits)
+        meta["trained_limits"] = limit_rules.describe(settings["robot_limits"])
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
     return arrays
 
