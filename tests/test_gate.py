@@ -498,3 +498,18 @@ def test_the_client_refuses_an_unchecked_calibration(policy, tmp_path, capsys, a
         code, cap = _serve_and_run(policy, capsys, "--limits", lim, "--arms", "ur-sim")
         assert code == 2 and words in cap.err.splitlines()[-1], cap.err
     assert arm_recorder.commands == 0
+
+
+def test_a_base_turned_almost_half_a_turn_gives_a_loadable_calibration():
+    """~0.01 s: a base yaw within 1e-5 rad of pi (the nominal cell's) gives a rotation vector
+    no longer than pi, so the calibration file it is written to loads (the property test found
+    one 9e-6 rad past pi: the axis was not normalized)."""
+    from daddpg_jax.deploy.robot import matrix_to_rotvec, rot_z, rotvec_to_matrix
+
+    for d in (-9.05e-6, 9.05e-6, -1e-7, 1e-3):
+        r = matrix_to_rotvec(rot_z(math.pi + d))
+        assert np.linalg.norm(r) <= math.pi
+        np.testing.assert_allclose(rotvec_to_matrix(r), rot_z(math.pi + d), atol=1e-9)
+        cal = {a: {"base_pos": [0.0, y, 0.4], "base_rotvec": r.tolist(),
+                   "residuals_mm": [0.5] * 6} for a, y in (("left", 0.25), ("right", -0.25))}
+        RobotLimits(calibration=cal).check_calibration()

@@ -8,7 +8,7 @@ the box, no finger command outside its range (checked by the independent recorde
 tests/arm_recorder.py, with its own arithmetic); no exception escapes; every run ends in
 bounded time (a fake clock: the episode length bounds the periods).
 
-Default tier: >= 500 generated control periods (~8 s); slow tier: >= 20,000 (~2 min). The
+Default tier: >= 500 generated control periods (~5 s); slow tier: >= 20,000 (~3 min). The
 count and the seed are printed (docs/RELIABILITY.md quotes them)."""
 
 from __future__ import annotations
@@ -230,7 +230,7 @@ def _property(monkeypatch, examples: int):
 
 
 def test_no_command_leaves_the_limits_whatever_the_service_files_and_arms_do(monkeypatch):
-    """~8 s: >= 500 generated control periods (seed SEED)."""
+    """~5 s: >= 500 generated control periods (seed SEED)."""
     periods = _property(monkeypatch, 12)
     print(f"generated control periods: {periods} (seed {SEED})")
     assert periods >= 500
@@ -238,7 +238,7 @@ def test_no_command_leaves_the_limits_whatever_the_service_files_and_arms_do(mon
 
 @pytest.mark.slow
 def test_no_command_leaves_the_limits_long(monkeypatch):
-    """~2 min: >= 20,000 generated control periods (seed SEED)."""
-    periods = _property(monkeypatch, 320)
+    """~3 min: >= 20,000 generated control periods (seed SEED)."""
+    periods = _property(monkeypatch, 400)
     print(f"generated control periods: {periods} (seed {SEED})")
     assert periods >= 20_000

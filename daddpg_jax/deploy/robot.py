@@ -126,8 +126,10 @@ def matrix_to_rotvec(R) -> np.ndarray:
         k = int(np.argmax(axis))
         axis = M[k] / np.sqrt(M[k, k])
         return axis / np.linalg.norm(axis) * angle
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2 * np.sin(angle))
-    return axis * angle
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    # normalized, not divided by 2 sin(angle): near pi that quotient is off by ~1e-6 and the
+    # vector's length exceeded pi (a calibration file the limits then refused)
+    return axis / np.linalg.norm(axis) * angle
 
 
 def rotvec_to_matrix(r) -> np.ndarray:
