@@ -3,9 +3,12 @@
 import json
 import math
 
+import pytest
+
 from daddpg_jax.cli import benchmark as bench_cli
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_benchmark_suite_writes_json(tmp_path):
     out_path = tmp_path / "bench.json"
     bench_cli.run(["--tasks", "push", "--physics", "c", "--mode", "all", "--sizes", "2",

@@ -37,6 +37,7 @@ def old_run(tmp_path):
     return str(run)
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_old_run_exports_and_resumes(old_run, tmp_path, reference):
     cfg, _ = ckpt.load_config(old_run)
     assert cfg.hidden == (16,) and cfg.task == "reach"

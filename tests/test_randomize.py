@@ -331,6 +331,7 @@ def test_c_engine_models_follow_every_new_draw():
         np.testing.assert_array_equal(models[0].body_pos[1:], env.mj_model.body_pos[1:])
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_grasped_starts_keep_the_geometry_nominal():
     """A recorded grasp is exact under the nominal geometry only: episodes that start from one
     keep size, table and bases nominal (and their goals), the rest stays randomized."""

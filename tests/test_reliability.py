@@ -275,6 +275,7 @@ def test_export_best(cli_run, tmp_path, capsys):
 
 # -- 5. non-finite loss before any checkpoint -------------------------------------------------
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_nonfinite_loss_in_the_first_epoch_says_no_checkpoint(tmp_path):
     nan_env = toy_env.make(episode_length=T, contact_penalty=float("nan"))
     with pytest.raises(NonFiniteLoss) as e:
@@ -505,6 +506,7 @@ def _hold_lock(run: str) -> int:
     return fd
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_a_run_directory_in_use_is_refused_with_one_line(env, tmp_path, capsys):
     """~2 s: the CLI and the library refuse a directory whose lock is held, writing nothing."""
     run = str(tmp_path / "run")
@@ -620,6 +622,7 @@ def test_export_cli_writes_onnx_of_a_run(cli_run, tmp_path, capsys):
     np.testing.assert_allclose(a.act(o, g), b.act(o, g), rtol=0, atol=1e-5)
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_full_disk_during_a_checkpoint_save_is_one_line_and_resumable(cli_run, tmp_path,
                                                                       monkeypatch, capsys):
     """~5 s: orbax's save fails with ENOSPC halfway (its temporary directory written) at
@@ -670,6 +673,7 @@ def test_evaluation_too_large_for_memory_is_one_line(cli_run, capsys):
     assert "1,000,000,000 episodes" in line and "--episodes" in line
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_planted_symlinks_are_never_written_through(env, tmp_path):
     """~3 s: files named as the temporary files of older versions, planted as symlinks in a
     run directory, are not written through (temporary names are new, O_EXCL, random)."""

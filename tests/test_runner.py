@@ -50,6 +50,7 @@ def test_epoch_time_is_split_into_rollout_update_and_evaluation(env, tmp_path):
     assert float(rows[0]["rollout_time"]) > float(rows[1]["rollout_time"])
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_run_outputs_and_resume_equals_uninterrupted(env, tmp_path):
     a, b = str(tmp_path / "a"), str(tmp_path / "b")
     full = train(TINY.replace(n_epochs=2), run_options(a, env, plot=plot_learning_curve))

@@ -153,6 +153,7 @@ def test_goal_rest_fraction_numpy_and_jax_agree():
 
 # -- grasp_start_fraction (C engine) -----------------------------------------------------------
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 @pytest.mark.parametrize("task", LIFT_TASKS)
 def test_grasp_start_every_episode_starts_grasped_and_holds(task):
     env = _grasp_env(task)

@@ -67,6 +67,7 @@ def scalars(events) -> dict:
 
 # -- TensorBoard ---------------------------------------------------------------------------
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_tensorboard_event_file_holds_every_column_and_the_config(env, tmp_path):
     """one toy run of 3 epochs (~10 s, mostly compiling), then the event file is read back."""
     run = str(tmp_path / "run")
@@ -92,6 +93,7 @@ def test_tensorboard_event_file_holds_every_column_and_the_config(env, tmp_path)
     assert text and '"n_cycles": 2' in text[0].tensor.string_val[0].decode()
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_tensorboard_resume_continues_the_event_log(env, tmp_path):
     """two toy runs (~20 s, mostly compiling): a resume after a dropped epoch (its CSV row
     written, its checkpoint not) purges that epoch's events: each step once."""
@@ -152,6 +154,7 @@ def test_wandb_flag_without_wandb_is_one_line(tmp_path, monkeypatch, capsys):
     assert e.value.code == 2 and "daddpg-jax[wandb]" in err and "Traceback" not in err
 
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_video_every_without_a_renderer_warns_once(env, tmp_path, capfd):
     """one toy run (~10 s, mostly compiling): the toy env has no MuJoCo scene to render: one
     warning, the run goes on."""
@@ -167,6 +170,7 @@ def test_video_every_without_a_renderer_warns_once(env, tmp_path, capfd):
 
 # -- progress and the closing line ---------------------------------------------------------
 
+@pytest.mark.e2e  # a whole training run (default tier kept under 5 min)
 def test_why_a_run_stopped(env, tmp_path):
     """two toy runs (~20 s, mostly compiling): time budget, --stop-at-success (all epochs
     done: test_tensorboard_event_file_holds_every_column_and_the_config)."""
