@@ -195,23 +195,22 @@ class GatedArms:
         """GateRefusal unless every arm's measured tool position and start pose lie in its
         box. Reads the arms (nothing is sent)."""
         poses = np.asarray(poses, float).reshape(NUM_ARMS, 6)
-        start = self.world(poses[:, :3])
-        arm = self._outside(start, BOX_TOLERANCE)
-        if arm is not None:
-            raise GateRefusal(
-                f"the task's start pose {_fmt(start[arm])} of the {ARM_NAMES[arm]} arm lies "
-                f"outside its box {_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved "
-                f"(the limits file's box must hold the start pose)")
-        measured = self.world(self.read().tool_pose[:, :3])
-        arm = self._outside(measured, MEASURED_TOLERANCE)
-        if arm is not None:
-            raise GateRefusal(
-                f"the {ARM_NAMES[arm]} arm's measured tool position {_fmt(measured[arm])} lies "
-                f"outside its box {_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved "
-                f"(move it into the box by hand, or check the limits and the calibration)")
+        self._require_inside(self.world(poses[:, :3]), BOX_TOLERANCE, "the task's start pose",
+                             "the limits file's box must hold the start pose")
+        self._require_inside(self.world(self.read().tool_pose[:, :3]), MEASURED_TOLERANCE,
+                             "the measured tool position", "move it into the box by hand, or "
+                             "check the limits and the calibration")
         why = self._orientation(poses)
         if why is not None:
             raise GateRefusal(f"the start pose: {why}; nothing moved")
+
+    def _require_inside(self, world, tol: float, what: str, hint: str) -> None:
+        """GateRefusal (one line) when a point of ``world`` [2, 3] lies outside its box."""
+        arm = self._outside(world, tol)
+        if arm is not None:
+            raise GateRefusal(
+                f"{what} {_fmt(world[arm])} of the {ARM_NAMES[arm]} arm lies outside its box "
+                f"{_fmt(self.low[arm])}..{_fmt(self.high[arm])}; nothing moved ({hint})")
 
     def _orientation(self, poses) -> str | None:
         """Why a pose [2, 6] does not point the tool down, or None."""
