@@ -262,6 +262,23 @@ def test_tracker_holds_while_hidden_and_reports_the_age():
         ob.ObjectTracker(ob.BAR, mode="guess")
 
 
+def test_tracker_ignores_a_frame_delivered_again_and_predicts_over_latency():
+    """~0.01 s: a dropped capture delivers the previous frame again (same capture time): the
+    velocity estimate is kept, not reset; a frame older than the last one changes nothing;
+    "predict" reads a late frame (100 ms) at the present, "hold" at its capture time."""
+    for mode, lead in (("hold", 0.0), ("predict", 0.1)):
+        tr = ob.ObjectTracker(ob.BAR, mode=mode)
+        for k in range(20):
+            est = _estimate(0.04 * k, (0.25 + 0.004 * k, 0.0, 0.42))
+            r = tr.update(est, 0.04 * k + 0.1)  # every frame 100 ms late
+        again = tr.update(est, 0.04 * 20 + 0.1)  # the same frame once more, 40 ms later
+        assert again["linvel"][0] == pytest.approx(0.1, abs=0.01)
+        older = tr.update(_estimate(0.5, (0.0, 0.0, 0.42)), 0.04 * 21 + 0.1)
+        assert older["pos"][0] > 0.3  # not pulled back to x = 0
+        truth = 0.25 + 0.1 * (0.04 * 19 + lead)  # where the bar is (predict) / was (hold)
+        assert r["pos"][0] == pytest.approx(truth, abs=0.002), mode
+
+
 class _Stub:
     """A camera whose frames carry only a stamp, and an estimator that sees the object in
     the first ``n`` frames only."""

@@ -152,6 +152,8 @@ def test_perception_options_and_their_refusals(tmp_path):
                       (("tags", "sim", "opencv", "ur-sim"), "real cell"),
                       (("sampler", "camera-color", "opencv", "ur"), "depth")]:
         assert msg in perception.check_options(*args)
+    assert "--track" in perception.check_options("tags", "sim", None, "sim", track="predict")
+    assert perception.check_options("sampler", "camera-tag", None, "sim", track="predict") is None
     opt = type("O", (), {"goals": "sampler", "objects": "sim", "camera": None, "seed": 0})
     assert perception.from_options(opt, RobotLimits(), "pickup") is None
     opt.objects = "camera-tag"

@@ -151,7 +151,7 @@ def main(argv=None) -> int:
                                 ur_hosts=args.ur_hosts, sim_base_error=args.sim_base_error,
                                 policy_sha256=args.policy_sha256)
     bad = bad or session.check_numbers(args) or perception.check_options(
-        args.goals, args.objects, args.camera, args.arms)
+        args.goals, args.objects, args.camera, args.arms, track=args.track)
     if bad:
         return _fail(bad)
     with session.Signals() as signals:

@@ -10,10 +10,13 @@ simulated camera) is imported when a camera is asked for.
   true goals. A tag not seen holds the arms for the whole episode.
 - ``--objects sim`` (default): the simulated cell's own object (ground truth). ``--objects
   camera-tag`` / ``camera-color``: the object from the camera every control period (its tag,
-  or colour and depth), tracked (`daddpg_jax.deploy.camera.objects.CameraObjectSource`, hold
-  mode) and watched (`WatchedObjects`): a frame older than the limits' ``max_frame_age`` or
-  an object not seen for longer than ``max_object_lost`` holds the arms (the observation's
-  ``perception_fault``), as a stale arm reading does; such episodes count as failures.
+  or colour and depth), tracked (`daddpg_jax.deploy.camera.objects.CameraObjectSource`;
+  ``--track hold``, the default, keeps the last pose while the object is hidden, as the
+  paper's robot did; ``--track predict`` carries it forward at its estimated velocity, also
+  over a late frame's age) and watched (`WatchedObjects`): a frame older than the limits'
+  ``max_frame_age`` or an object not seen for longer than ``max_object_lost`` holds the arms
+  (the observation's ``perception_fault``), as a stale arm reading does; such episodes count
+  as failures.
 - ``--camera sim`` (default with ``--arms sim`` / ``ur-sim``): the simulated cell rendered
   from the limits' camera pose every control period (`SimCamera`, no shadows, the sensor's
   noise from its own random stream); ``opencv`` / ``realsense``: a real camera (``--arms
@@ -37,6 +40,8 @@ import numpy as np
 
 GOALS = ("sampler", "tags")
 OBJECTS = ("sim", "camera-tag", "camera-color")
+TRACKING = ("hold", "predict")
+"""the object tracker's modes (`daddpg_jax.deploy.camera.objects.ObjectTracker`)"""
 CAMERAS = ("sim", "opencv", "realsense")
 CAMERA_STREAM = 0x43414D
 """second seed word of the simulated camera's own random stream ([seed, CAMERA_STREAM])"""
@@ -60,6 +65,10 @@ def add_arguments(p) -> None:
              "object from the camera every control period, by its tag or by colour and depth "
              "(a frame older than the limits' max_frame_age or the object lost for longer "
              "than max_object_lost holds the arms)")
+    add("--track", choices=TRACKING, default="hold",
+        help="the object tracker (--objects camera-*): hold keeps the last pose while the "
+             "object is hidden (default); predict carries it forward at its estimated "
+             "velocity, also over a late frame's age")
     add("--camera", choices=CAMERAS, default=None,
         help="the camera (default: the limits file's [camera] kind, else sim): sim renders the "
              "simulated cell (--arms sim, ur-sim); opencv, realsense: a real camera (--arms ur)")
@@ -69,10 +78,13 @@ def add_arguments(p) -> None:
              "simulation), commanded targets, limits boxes, safety holds, step times")
 
 
-def check_options(goals: str, objects: str, camera: str | None, arms: str) -> str | None:
+def check_options(goals: str, objects: str, camera: str | None, arms: str,
+                  track: str = "hold") -> str | None:
     """One-line error text when the perception flags do not fit together or with ``--arms``,
     else None."""
     uses = goals == "tags" or objects != "sim"
+    if track != "hold" and objects == "sim":
+        return "--track predicts an object seen by the camera: use --objects camera-tag/color"
     if camera is not None and not uses:
         return "--camera needs --goals tags or --objects camera-tag/camera-color"
     if arms == "ur" and camera == "sim":
@@ -241,7 +253,8 @@ class Perception:
     cell (a `daddpg_jax.deploy.ursim.SimCell`; None on real arms) it returns (object source
     or None, goal source or None) for `daddpg_jax.deploy.arms.ArmsEnv`. ``limits``: the
     `RobotLimits` (the ``[camera]`` table, the ages); ``task``; ``seed``: the run's (the
-    simulated camera's stream is [seed, CAMERA_STREAM]); ``sim``: `SimOptions`."""
+    simulated camera's stream is [seed, CAMERA_STREAM]); ``sim``: `SimOptions`; ``track``:
+    the object tracker's mode (`TRACKING`)."""
 
     goals: str
     objects: str
@@ -250,6 +263,7 @@ class Perception:
     task: str
     seed: int = 0
     sim: SimOptions = field(default_factory=SimOptions)
+    track: str = "hold"
     camera: object = None
     goal_source: object = None
     object_source: object = None
@@ -257,6 +271,8 @@ class Perception:
     def __post_init__(self):
         if self.goals not in GOALS or self.objects not in OBJECTS:
             raise PerceptionError(f"--goals must be one of {GOALS}, --objects one of {OBJECTS}")
+        if self.track not in TRACKING:
+            raise PerceptionError(f"--track must be one of {TRACKING}, got {self.track!r}")
         if self.objects != "sim":
             from daddpg_jax.deploy.camera.objects import geometry_for_task  # lazy: OpenCV
 
@@ -278,7 +294,7 @@ class Perception:
             from daddpg_jax.deploy.camera.objects import make_object_source  # lazy: OpenCV
 
             method = "tag" if self.objects == "camera-tag" else "colour"
-            src = make_object_source(self.camera, self.task, T, method, "hold",
+            src = make_object_source(self.camera, self.task, T, method, self.track,
                                      place=None if cell is None else cell.reset)
             objects = WatchedObjects(src, self.limits.max_frame_age,
                                      self.limits.max_object_lost, close=self.close)
@@ -362,7 +378,8 @@ def camera_config(limits, kind: str | None = None):
 
 def from_options(opt, limits, task: str, sim: SimOptions | None = None):
     """The `Perception` of daddpg-robot-client's options ``opt`` (``goals``, ``objects``,
-    ``camera``, ``seed``) for ``task``, or None when no camera is used. PerceptionError."""
+    ``camera``, ``track``, ``seed``) for ``task``, or None when no camera is used.
+    PerceptionError."""
     goals, objects = getattr(opt, "goals", "sampler"), getattr(opt, "objects", "sim")
     if goals == "sampler" and objects == "sim":
         return None
@@ -370,7 +387,8 @@ def from_options(opt, limits, task: str, sim: SimOptions | None = None):
     # imported yet (the simulator is built after this)
     os.environ.setdefault("MUJOCO_GL", "egl")
     return Perception(goals, objects, getattr(opt, "camera", None), limits, task,
-                      seed=getattr(opt, "seed", 0), sim=sim or SimOptions())
+                      seed=getattr(opt, "seed", 0), sim=sim or SimOptions(),
+                      track=getattr(opt, "track", "hold"))
 
 
 # -- daddpg-calibrate --camera ------------------------------------------------------------------

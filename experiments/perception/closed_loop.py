@@ -18,9 +18,12 @@ policy ships with the project; the stand-ins are what is measured.
   depth): the bar from the camera every control period (256x192 at 26 deg: the pixels per
   radian of a 640x480 camera with a 60 deg field of view, cropped to the workspace), tracked in
   hold mode. Ground truth: the simulator's bar.
-- Robustness (fewer episodes): the camera moved after its calibration (1 cm along the world's
-  y, turned 1 deg about the world's y: the limits keep the calibrated pose), 20 % of captures
-  delivering the previous frame again, 100 ms capture latency.
+- Robustness: the camera moved after its calibration (1 cm along the world's y, turned 1 deg
+  about the world's y: the limits keep the calibrated pose), 20 % of captures delivering the
+  previous frame again, 100 ms capture latency (also with the tracker's ``predict`` mode).
+
+Each condition is written to the JSON as it finishes; ``--only NAME...`` runs some again and
+keeps the others.
 
 A frame older than the limits' ``max_frame_age`` (0.15 s), a Reach tag not seen, or the bar
 not seen for longer than ``max_object_lost`` (0.5 s) holds the arms; those episodes count as
@@ -86,7 +89,8 @@ def limits_for(task: str) -> RobotLimits:
     return RobotLimits.from_dict(d, source="sim.toml with a [camera] table")
 
 
-def run(task: str, goals: str, objects: str, episodes: int, seed: int, sim=None) -> dict:
+def run(task: str, goals: str, objects: str, episodes: int, seed: int, sim=None,
+        track: str = "hold") -> dict:
     """One condition: per-episode success (perception holds count as failures) and the
     run's summary."""
     limits = limits_for(task)
@@ -98,7 +102,7 @@ def run(task: str, goals: str, objects: str, episodes: int, seed: int, sim=None)
             sources = lambda cell: (None, TruthGoals(park))  # noqa: E731
     else:
         sources = perception.Perception(goals, objects, "sim", limits, task, seed=seed,
-                                        sim=sim or perception.SimOptions())
+                                        sim=sim or perception.SimOptions(), track=track)
     env = arms_env("ur-sim", robot_task(task), task, limits, safety=safety, sources=sources)
     logs = []
     t0, c0 = time.perf_counter(), time.process_time()
@@ -157,42 +161,85 @@ def compare(name: str, cam: dict, truth: dict) -> dict:
         camera=cam, meets_target=ci[0] >= -0.10)
 
 
+ROBUST = {"moved_1cm_1deg": dict(pose_error=MOVED), "dropped_20pc": dict(drop=0.2),
+          "latency_100ms": dict(latency=0.1)}
+"""what goes wrong after the calibration: the mount moved, dropped captures, a late frame"""
+
+
+def conditions(n: int, n_colour: int, n_robust: int) -> dict:
+    """name -> (task, goals, objects, episodes, robustness key or None, tracker mode), the
+    ground truth of each task first."""
+    c = {"truth_reach": ("reach", "sampler", "sim", n, None, "hold"),
+         "truth_pickup": ("pickup", "sampler", "sim", n, None, "hold"),
+         "reach_tags": ("reach", "tags", "sim", n, None, "hold"),
+         "pickup_tag": ("pickup", "sampler", "camera-tag", n, None, "hold"),
+         "pickup_colour": ("pickup", "sampler", "camera-color", n_colour, None, "hold")}
+    for key in ROBUST:
+        c[f"reach_tags_{key}"] = ("reach", "tags", "sim", n_robust, key, "hold")
+        c[f"pickup_tag_{key}"] = ("pickup", "sampler", "camera-tag", n_robust, key, "hold")
+    # the tracker's prediction carries a late frame to the present
+    c["pickup_tag_latency_100ms_predict"] = ("pickup", "sampler", "camera-tag", n_robust,
+                                             "latency_100ms", "predict")
+    return c
+
+
+def sim_options(key):
+    from daddpg_jax.deploy.camera.sim_camera import SensorModel  # lazy: MuJoCo's renderer
+
+    o = dict(ROBUST[key]) if key else {}
+    lat = o.pop("latency", None)
+    if lat is not None:
+        o["sensor"] = SensorModel(latency=(lat, lat))
+    return perception.SimOptions(**o)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=200, help="paired episodes per task")
-    p.add_argument("--colour-episodes", type=int, default=100)
-    p.add_argument("--robust-episodes", type=int, default=50)
+    p.add_argument("--colour-episodes", type=int, default=200)
+    p.add_argument("--robust-episodes", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--only", nargs="*", default=None, metavar="NAME",
+                   help="run these conditions only (the ground truth they need too), keeping "
+                        "the others already in --out")
     p.add_argument("--out", default=OUT)
     a = p.parse_args(argv)
-    # lazy: MuJoCo's renderer, after MUJOCO_GL is set
-    from daddpg_jax.deploy.camera.sim_camera import SensorModel
-
-    t0 = time.perf_counter()
+    table = conditions(a.episodes, a.colour_episodes, a.robust_episodes)
+    names = list(table) if a.only is None else a.only
+    unknown = sorted(set(names) - set(table))
+    if unknown:
+        p.error(f"unknown conditions {unknown}; known: {sorted(table)}")
     res: dict = {}
-    n, nr = a.episodes, a.robust_episodes
-    reach_truth = run("reach", "sampler", "sim", n, a.seed)
-    res["reach_tags"] = compare("reach, tags", run("reach", "tags", "sim", n, a.seed),
-                                reach_truth)
-    pick_truth = run("pickup", "sampler", "sim", n, a.seed)
-    res["pickup_tag"] = compare("pick up, tag", run("pickup", "sampler", "camera-tag", n,
-                                                     a.seed), pick_truth)
-    res["pickup_colour"] = compare("pick up, colour", run(
-        "pickup", "sampler", "camera-color", a.colour_episodes, a.seed), pick_truth)
-    robust = {"moved_1cm_1deg": perception.SimOptions(pose_error=MOVED),
-              "dropped_20pc": perception.SimOptions(drop=0.2),
-              "latency_100ms": perception.SimOptions(sensor=SensorModel(latency=(0.1, 0.1)))}
-    res["robustness"] = {"reach_tags_moved_1cm_1deg": compare(
-        "reach, tags, camera moved", run("reach", "tags", "sim", nr, a.seed,
-                                         robust["moved_1cm_1deg"]), reach_truth)}
-    for key, sim in robust.items():
-        res["robustness"][f"pickup_tag_{key}"] = compare(
-            f"pick up, tag, {key}", run("pickup", "sampler", "camera-tag", nr, a.seed, sim),
-            pick_truth)
-    res["truth"] = {"reach": reach_truth, "pickup": pick_truth}
+    if a.only is not None and os.path.exists(a.out):
+        with open(a.out) as f:
+            res = json.load(f)
+    res.setdefault("truth", {})
     rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                          text=True, cwd=ROOT).stdout.strip()
+    t0 = time.perf_counter()
+    for name in names:  # the truths first: each camera condition is compared with its task's
+        task = table[name][0]
+        truth = res["truth"].get(task)
+        if truth is None or len(truth["success"]) < table[name][3]:
+            print(f"ground truth, {task}: {max(table[f'truth_{task}'][3], table[name][3])} "
+                  f"episodes", flush=True)
+            res["truth"][task] = run(task, "sampler", "sim", max(table[f"truth_{task}"][3],
+                                                                   table[name][3]), a.seed)
+        if name.startswith("truth_"):
+            continue
+        task, goals, objects, n, key, track = table[name]
+        cam = run(task, goals, objects, n, a.seed, sim_options(key), track=track)
+        out = compare(name, cam, res["truth"][task])
+        out.update(robustness=key, track=track, revision=rev)
+        res.setdefault("conditions", {})[name] = out
+        _write(a.out, res, a, rev, t0)  # each condition kept as it finishes
+    _write(a.out, res, a, rev, t0)
+    print(f"written {a.out} in {time.perf_counter() - t0:.1f} s", flush=True)
+    return 0
+
+
+def _write(path, res, a, rev, t0) -> None:
     res["meta"] = dict(command=" ".join(["python", "experiments/perception/closed_loop.py",
                                          *sys.argv[1:]]),
                        seed=a.seed, cameras=CAMERAS, moved=MOVED, revision=rev,
@@ -200,11 +247,11 @@ def main(argv=None) -> int:
                                f"Python {platform.python_version()}",
                        wall_s=round(time.perf_counter() - t0, 1),
                        cpu_s=round(time.process_time(), 1))
-    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-    with open(a.out, "w") as f:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
         json.dump(res, f, indent=1)
-    print(f"written {a.out} in {res['meta']['wall_s']} s", flush=True)
-    return 0
+    os.replace(tmp, path)
 
 
 if __name__ == "__main__":

@@ -13,8 +13,11 @@ estimated from a frame in two ways, tracked over time, and served as an object s
 - `ObjectTracker`: an alpha-beta filter of position and orientation (velocities from the
   sightings' capture times), which holds the last pose (``mode="hold"``, as the paper's robot
   did while the grippers hid its rod) or predicts it at constant velocity for up to
-  ``predict_s`` (``mode="predict"``) when a frame has no sighting; every reading carries the
-  age of the last real sighting (``age``, s) and whether this frame had one (``seen``).
+  ``predict_s`` (``mode="predict"``) when a frame has no sighting; "predict" also carries
+  each sighting forward from its capture time to the present (a late frame). A frame
+  delivered again (the same capture time) or out of order changes nothing. Every reading
+  carries the age of the last real sighting (``age``, s) and whether this frame had one
+  (``seen``).
 - `CameraObjectSource`: the object source of `daddpg_jax.deploy.arms.ArmsEnv`: ``reset(qpos)``
   and ``read()`` returning the world-frame dict of
   `mjx_envs.observation.read_object_sensors` (plus ``age``, ``seen`` and ``source``).
@@ -347,10 +350,11 @@ class ObjectTracker:
 
     def _correct(self, est: ObjectEstimate) -> None:
         t = float(est.stamp)
+        if self.pos is not None and t <= self.t:
+            return  # a frame delivered again (a dropped capture) or one out of order: no news
         pos, R = np.asarray(est.pos, float).copy(), np.asarray(est.R, float).copy()
-        if self.pos is None or t <= self.t or t - self.seen_at > self.max_gap:
-            # the first sighting, one out of order, or one after a long gap: taken as is,
-            # without a velocity
+        if self.pos is None or t - self.seen_at > self.max_gap:
+            # the first sighting, or one after a long gap: taken as is, without a velocity
             self.pos, self.R = pos, R
             self.vel, self.omega = np.zeros(3), np.zeros(3)
         else:
