@@ -7,8 +7,8 @@ ur-sim``), in-process.
 Each condition runs the robot client's loop (`daddpg_jax.deploy.robot.run_episodes`: the gate,
 the safety layer, the UR driver path on simulated controllers, the episodes of one seed) with a
 stand-in controller in place of a served policy (`daddpg_jax.deploy.stand_in`: Reach steps
-towards the goal it is given; Pick up is the scripted two-arm grasp, which reads the bar's
-points from the observation, so it sees what the camera reports). No trained Pick up or Pot
+towards the goal it is given; Pick up and Pot are the scripted two-arm grasp, which reads the
+object's points from the observation, so it sees what the camera reports). No trained Pick up or Pot
 policy ships with the project; the stand-ins are what is measured.
 
 - Reach, ``--goals tags``: the per-arm Reach tags put where the sampler's goals are, read at
@@ -18,6 +18,8 @@ policy ships with the project; the stand-ins are what is measured.
   depth): the bar from the camera every control period (256x192 at 26 deg: the pixels per
   radian of a 640x480 camera with a 60 deg field of view, cropped to the workspace), tracked in
   hold mode. Ground truth: the simulator's bar.
+- Pot, ``--objects camera-tag`` (tag 21 on the lid) and ``camera-color`` (the lid's colour
+  and depth, the yaw from the handles' colour): as Pick up, the same camera.
 - Robustness: the camera moved after its calibration (1 cm along the world's y, turned 1 deg
   about the world's y: the limits keep the calibrated pose), 20 % of captures delivering the
   previous frame again, 100 ms capture latency (also with the tracker's ``predict`` mode).
@@ -58,7 +60,8 @@ from daddpg_jax.deploy.stand_in import client_for  # noqa: E402
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 OUT = os.path.join(ROOT, "docs", "results", "perception", "closed_loop.json")
 CAMERAS = {"reach": {"width": 640, "height": 480, "fovy_deg": 45.0, "layout": "per-arm"},
-           "pickup": {"width": 256, "height": 192, "fovy_deg": 26.0}}
+           "pickup": {"width": 256, "height": 192, "fovy_deg": 26.0},
+           "pot": {"width": 256, "height": 192, "fovy_deg": 26.0}}
 MOVED = (0.0, 0.01, 0.0, 0.0, 1.0, 0.0)
 """the camera moved after calibration: dx, dy, dz (m), rx, ry, rz (deg, world frame)"""
 
@@ -173,7 +176,10 @@ def conditions(n: int, n_colour: int, n_robust: int) -> dict:
          "truth_pickup": ("pickup", "sampler", "sim", n, None, "hold"),
          "reach_tags": ("reach", "tags", "sim", n, None, "hold"),
          "pickup_tag": ("pickup", "sampler", "camera-tag", n, None, "hold"),
-         "pickup_colour": ("pickup", "sampler", "camera-color", n_colour, None, "hold")}
+         "pickup_colour": ("pickup", "sampler", "camera-color", n_colour, None, "hold"),
+         "truth_pot": ("pot", "sampler", "sim", n, None, "hold"),
+         "pot_tag": ("pot", "sampler", "camera-tag", n, None, "hold"),
+         "pot_colour": ("pot", "sampler", "camera-color", n_colour, None, "hold")}
     for key in ROBUST:
         c[f"reach_tags_{key}"] = ("reach", "tags", "sim", n_robust, key, "hold")
         c[f"pickup_tag_{key}"] = ("pickup", "sampler", "camera-tag", n_robust, key, "hold")
