@@ -37,6 +37,7 @@ from daddpg_jax.deploy.camera.frames import (
     quat_to_matrix,
     rotvec_to_matrix,
     yaw_matrix,
+    yaw_of,
 )
 from daddpg_jax.deploy.camera.opencv_camera import OpenCVCamera
 from daddpg_jax.deploy.camera.realsense_camera import RealSenseCamera
@@ -260,6 +261,33 @@ def test_tracker_holds_while_hidden_and_reports_the_age():
         assert r["age"] == 0.0 and not np.any(r["linvel"])
     with pytest.raises(ValueError):
         ob.ObjectTracker(ob.BAR, mode="guess")
+
+
+def test_pot_yaw_from_one_handle_and_held_while_both_are_hidden():
+    """~0.01 s: the handles' axis seen from the lid's centre: one handle alone (a short bar
+    across the axis) still gives the axis, not the handle's own length; a sighting of the
+    lid alone (no yaw) cannot start a track, and later moves the position while the track's
+    yaw is held."""
+    rng = np.random.default_rng(0)
+    yaw = np.radians(30.0)
+    axis = np.array([-np.sin(yaw), np.cos(yaw), 0.0])  # the object's y axis (the handles)
+    across = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    centre = np.array([0.3, 0.0, 0.45])
+    handle = centre + 0.095 * axis + rng.uniform(-0.03, 0.03, (200, 1)) * across \
+        + rng.uniform(-0.005, 0.005, (200, 1)) * axis
+    a = ob._radial_axis(handle, centre, np.array([0.0, 0.0, 1.0]))
+    assert abs(a @ axis) > 0.999
+    tr = ob.ObjectTracker(ob.POT)
+    R = yaw_matrix(yaw)
+    lid_only = ob.ObjectEstimate(centre, np.eye(3), ob.POT.object_points(centre, np.eye(3)),
+                                 0.0, "colour", has_yaw=False)
+    assert tr.update(lid_only)["age"] == math.inf  # no track from a position alone
+    tr.update(ob.ObjectEstimate(centre, R, ob.POT.object_points(centre, R), 0.04, "colour"))
+    moved = centre + np.array([0.0, 0.0, 0.02])
+    lid_only.pos, lid_only.stamp = moved, 0.08
+    r = tr.update(lid_only)
+    assert r["seen"] and r["pos"][2] > centre[2] + 0.01
+    assert yaw_of(quat_to_matrix(r["quat"])) == pytest.approx(yaw, abs=1e-3)
 
 
 def test_tracker_ignores_a_frame_delivered_again_and_predicts_over_latency():

@@ -8,8 +8,11 @@ estimated from a frame in two ways, tracked over time, and served as an object s
 - `ColourObjectEstimator`: no tag; the object's top face (the bar, or the pot's lid) segmented
   by colour (HSV), its pixels back-projected with the depth image into the world, a plane
   fitted to them (the top face's normal), the centre below the face's centroid by the known
-  height; the principal axis of the bar's face (of the pot's two handles) gives the yaw and the
-  two ends. A face seen shorter than ``min_extent`` of its known length counts as hidden.
+  height; the principal axis of the bar's face gives the yaw and the two ends. The pot's yaw
+  comes from its handles' colour, seen from the lid's centre (one handle alone still gives
+  it); while the grippers hide the handles (fewer than ``min_axis_pixels``, or one side less
+  than half the other), the lid gives the position alone and the tracker holds the yaw. A
+  face seen shorter than ``min_extent`` of its known size counts as hidden.
 - `ObjectTracker`: an alpha-beta filter of position and orientation (velocities from the
   sightings' capture times), which holds the last pose (``mode="hold"``, as the paper's robot
   did while the grippers hid its rod) or predicts it at constant velocity for up to
@@ -116,7 +119,9 @@ def geometry_for_task(task: str) -> ObjectGeometry | None:
 @dataclass
 class ObjectEstimate:
     """One sighting: the object's centre ``pos`` [3] and orientation ``R`` [3, 3] (world),
-    its object points [2, 3], the capture time, and how it was found."""
+    its object points [2, 3], the capture time, and how it was found. ``has_yaw`` False: only
+    the position was seen (the pot's lid with both handles in the grippers); ``R`` is then
+    level with an arbitrary yaw and the tracker keeps its own."""
 
     pos: np.ndarray
     R: np.ndarray
@@ -124,6 +129,7 @@ class ObjectEstimate:
     stamp: float
     source: str
     quality: float = 0.0
+    has_yaw: bool = True
 
     @property
     def quat(self) -> np.ndarray:
@@ -229,6 +235,21 @@ def _axis(points, normal, toward=(0.0, 1.0, 0.0)):
     return a, float(hi - lo), float(0.5 * (lo + hi))
 
 
+def _radial_axis(points, centre, normal, toward=(0.0, 1.0, 0.0)):
+    """The direction from ``centre`` to ``points`` within the plane of ``normal``, as an axis
+    (the principal direction of their unit radial vectors: parts on opposite sides agree, and
+    one part alone still gives it, where a part's own principal direction would be its
+    length), turned towards ``toward``."""
+    q = points - centre
+    q = q - np.outer(q @ normal, normal)
+    r = np.linalg.norm(q, axis=1)
+    u = q[r > 1e-6] / r[r > 1e-6, None]
+    _, vecs = np.linalg.eigh(u.T @ u)
+    a = vecs[:, -1] - (vecs[:, -1] @ normal) * normal
+    a /= np.linalg.norm(a)
+    return -a if a @ np.asarray(toward) < 0 else a
+
+
 def _middle(s) -> float:
     return float(0.5 * (np.percentile(s, 1.0) + np.percentile(s, 99.0)))
 
@@ -239,10 +260,11 @@ class ColourObjectEstimator:
     source = "colour"
 
     def __init__(self, geometry: ObjectGeometry, T_world_cam, min_pixels: int = 40,
-                 min_extent: float = 0.8, erode: int = 1):
+                 min_extent: float = 0.8, erode: int = 1, min_axis_pixels: int = 100):
         self.geometry = geometry
         self.T_world_cam = np.asarray(T_world_cam, float)
         self.min_pixels, self.min_extent, self.erode = int(min_pixels), float(min_extent), erode
+        self.min_axis_pixels = int(min_axis_pixels)
 
     def _points(self, frame: Frame, ranges) -> np.ndarray:
         mask = hsv_mask(frame.rgb, ranges)
@@ -258,14 +280,21 @@ class ColourObjectEstimator:
         face, c, n = top_face(pts)
         if len(face) < self.min_pixels:
             return None
-        a, extent, _ = _axis(face, n)
-        if extent < self.min_extent * g.top_size[0]:
-            return None
-        if g.axis_hsv is not None:
-            parts = self._points(frame, g.axis_hsv)
-            if len(parts) < self.min_pixels:
+        if g.axis_hsv is None:
+            a, extent, _ = _axis(face, n)  # the face's length
+            if extent < self.min_extent * g.top_size[0]:
                 return None
-            a, _, _ = _axis(parts, n)
+        else:
+            parts = self._points(frame, g.axis_hsv)
+            if len(parts) < self.min_axis_pixels:  # the handles in the grippers: the lid alone
+                return self._lid_only(face, c, n, frame)
+            a = _radial_axis(parts, c, n)  # the handles seen from the lid's centre
+            side = (parts - c) @ a > 0
+            if min(side.sum(), (~side).sum()) < 0.5 * max(side.sum(), (~side).sum()):
+                return self._lid_only(face, c, n, frame)  # a handle half hidden: no yaw
+            # the grippers at the handles hide the face along the axis, not across it
+            if np.ptp((face - c) @ np.cross(n, a)) < self.min_extent * g.top_size[1]:
+                return None
         # the middle of the face's extent along and across the axis, not its centroid: the
         # ends stay in view when a gripper hides a neck, and the strip of a side face that
         # the band lets in lies within the face's outline
@@ -277,6 +306,20 @@ class ColourObjectEstimator:
         R = np.stack([x / np.linalg.norm(x), a, n], axis=1)
         return ObjectEstimate(pos, R, g.object_points(pos, R), frame.stamp, "colour",
                               float(len(face)))
+
+    def _lid_only(self, face, c, n, frame) -> ObjectEstimate | None:
+        """The position from a round face seen whole (its extent in two directions), no
+        yaw."""
+        g = self.geometry
+        a, extent, _ = _axis(face, n)
+        b = np.cross(n, a)
+        q = face - c
+        if min(extent, float(np.ptp(q @ b))) < self.min_extent * min(g.top_size):
+            return None
+        pos = c + _middle(q @ a) * a + _middle(q @ b) * b - g.top_z * n
+        R = np.stack([np.cross(a, n) / np.linalg.norm(np.cross(a, n)), a, n], axis=1)
+        return ObjectEstimate(pos, R, g.object_points(pos, R), frame.stamp, "colour",
+                              float(len(face)), has_yaw=False)
 
 
 # -- tracking -----------------------------------------------------------------------------------
@@ -352,7 +395,16 @@ class ObjectTracker:
         t = float(est.stamp)
         if self.pos is not None and t <= self.t:
             return  # a frame delivered again (a dropped capture) or one out of order: no news
+        if self.pos is None and not est.has_yaw:
+            return  # a position without a yaw cannot start the track
         pos, R = np.asarray(est.pos, float).copy(), np.asarray(est.R, float).copy()
+        if not est.has_yaw:  # the face's normal seen, the yaw held from the track
+            n = R[:, 2]
+            self.omega = np.zeros(3)
+            a = self.R[:, 1]
+            a = a - (a @ n) * n
+            a /= max(float(np.linalg.norm(a)), 1e-9)
+            R = np.stack([np.cross(a, n), a, n], axis=1)
         if self.pos is None or t - self.seen_at > self.max_gap:
             # the first sighting, or one after a long gap: taken as is, without a velocity
             self.pos, self.R = pos, R
