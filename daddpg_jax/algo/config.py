@@ -18,7 +18,7 @@ from daddpg_jax.variants import get as get_variant
 from mjx_envs import registry
 from mjx_envs.registry import default_config
 from mjx_envs.schema import ConfigError, finalize, from_dict, spec, to_dict
-from mjx_envs.settings import DEFAULT_TASK, PHYSICS  # noqa: F401  (PHYSICS re-exported)
+from mjx_envs.settings import DEFAULT_TASK, ENGINES, PHYSICS  # noqa: F401  (PHYSICS re-exported)
 
 HER_MODES = ("future", "final", "none")
 OTHER_ACTIONS = ("buffer", "policy")
@@ -150,6 +150,13 @@ class TrainConfig:
         "auto",
         "physics backend passed to `mjx_envs.make` ('auto', 'mjx' or 'c')",
         choices=PHYSICS)
+    cross_check: str = spec(
+        "",
+        "the other physics engine ('c' or 'mjx'; '' = off) on which every evaluation also "
+        "plays the best checkpoint so far over the same test episodes (metrics.csv "
+        "test_success_best and cross_success_best; daddpg-train --cross-check, "
+        "docs/MJX_VS_C.md)",
+        choices=("", *ENGINES))
     save_buffer: bool = spec(
         False,
         "store the replay buffer in checkpoints (needed for a bit-exact resume; large)")

@@ -32,6 +32,7 @@ from daddpg_jax.algo.resolve import add_flags, check_flags, field_help, resolve_
 from daddpg_jax.running import distributed, tracking
 from mjx_envs import registry
 from mjx_envs.schema import ConfigError
+from mjx_envs.settings import ENGINES
 
 
 def build_parser(device: str | None = None):
@@ -42,6 +43,13 @@ def build_parser(device: str | None = None):
         prog="daddpg-train", description=__doc__, epilog=field_help(device),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     add_flags(p, device)   # the flag table: daddpg_jax/algo/resolve.py, FLAGS
+    p.add_argument("--cross-check", choices=ENGINES, default=None, metavar="ENGINE",
+                   help="at every evaluation also play the best checkpoint so far on ENGINE "
+                        "(c or mjx: the engine other than --physics) over the same test "
+                        "episodes: metrics.csv test_success_best and cross_success_best "
+                        "(TensorBoard cross/*), and a closing warning when the two engines' "
+                        "success parts by more than 0.10 (docs/MJX_VS_C.md); recorded in "
+                        "config.json, kept by --resume; default off")
     distributed.add_flags(p)
     return p
 
@@ -71,10 +79,11 @@ def resolve(args, parser=None, check_out: bool = True):
     """(TrainConfig, env overrides, run dir) from the parsed flags; errors are ConfigError.
     check_out=False leaves a new run's directory unchecked (main claims it: run_dirs.claim)."""
     # lazy: these import JAX, and --help and argument errors stay JAX-free
-    from daddpg_jax.running import run_dirs
+    from daddpg_jax.running import cross_check, run_dirs
     from daddpg_jax.running.runner import check_physics_backend
 
     cfg, env_over = resolve_config(args, run_dirs.recorded)
+    cfg = cross_check.apply_flag(cfg, args.cross_check, resumed=bool(args.resume))
     run_dir = run_dirs.resumed(args.resume, args.out) if args.resume else None
     check_physics_backend(cfg.physics, cfg.num_envs)
     if run_dir is None:
@@ -142,7 +151,10 @@ def _run(args, layout, primary: bool, cfg, env_over, run_dir, loggers) -> int:
     finally:
         bar.close()
     if primary:
-        print(res.summary())
+        print(res.summary(), flush=True)
+        parted = res.cross_warning()   # --cross-check: the engines part at the best checkpoint
+        if parted:
+            print(f"warning: {parted}", file=sys.stderr, flush=True)
     return 0
 
 

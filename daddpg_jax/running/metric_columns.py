@@ -20,3 +20,19 @@ train_/test_physics_fault_rate: the fraction of the epoch's training / test epis
 step whose ``metrics["physics_ok"]`` is 0 (the engine froze or diverged; NaN for an env that
 does not report it). CSVs written before a column existed lack it and are rewritten with it
 (blank) on --resume."""
+
+CROSS_COLUMNS = ("test_success_best", "cross_success_best", "cross_best_epoch",
+                 "cross_eval_time")
+"""The columns a run with ``cross_check`` (daddpg-train --cross-check ENGINE) adds after
+METRIC_COLUMNS (`daddpg_jax.running.cross_check`): test_success_best = the best test success so
+far (that of the checkpoint in checkpoints_best/, this epoch's included), cross_success_best =
+that checkpoint's success on the other engine over the same test episodes (the same reset
+keys), cross_best_epoch = its epoch, cross_eval_time = the seconds that evaluation took this
+epoch (0 when the best did not change: the same parameters over the same episodes are not
+played again). A run without cross_check writes none of them."""
+
+
+def metric_columns(cross_check: str = "") -> tuple:
+    """The columns of a run's metrics.csv: METRIC_COLUMNS, and CROSS_COLUMNS when the run has
+    a cross-check engine."""
+    return METRIC_COLUMNS + CROSS_COLUMNS if cross_check else METRIC_COLUMNS

@@ -33,11 +33,15 @@ def header(cfg: TrainConfig, run_dir: str) -> str:
 
 
 def epoch_line(row: dict) -> str:
-    """The line printed after each epoch."""
+    """The line printed after each epoch (with --cross-check: and the best checkpoint's test
+    success on both engines, ``best a/b``)."""
+    cross = ""
+    if "cross_success_best" in row:
+        cross = f"  best {row['test_success_best']:.3f}/{row['cross_success_best']:.3f}"
     return (f"epoch {row['epoch']:4d}  env_steps {row['env_steps']:>10,}  "
             f"test_success {row['test_success_rate']:.3f}  "
             f"arm_contact {row['test_arm_contact_rate']:.3f}  "
-            f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s")
+            f"critic_loss {row['critic_loss']:.4f}  {row['env_steps_per_s']:,.0f} steps/s{cross}")
 
 
 class Progress:

@@ -45,14 +45,14 @@ def read_rows(path) -> list[dict]:
     return good
 
 
-def write_rows(path, rows: list[dict]) -> None:
+def write_rows(path, rows: list[dict], columns: tuple = METRIC_COLUMNS) -> None:
     """Rewrites metrics.csv whole through a temporary file and os.replace: a kill at any moment
-    leaves the old file or the new one."""
+    leaves the old file or the new one. `columns`: the run's (`metric_columns.metric_columns`)."""
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS, lineterminator="\r\n")
+    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\r\n")
     w.writeheader()
     for row in rows:
-        w.writerow({k: row.get(k, "") for k in METRIC_COLUMNS})
+        w.writerow({k: row.get(k, "") for k in columns})
     ckpt.write_atomic(path, buf.getvalue())
 
 
@@ -67,11 +67,12 @@ def success_of(row) -> float:
 @dataclass
 class RunLog:
     """What a run has written: its CSV rows, the best test success among them (the one in
-    checkpoints_best/), and the wall time of the epochs before this call."""
+    checkpoints_best/), the wall time of the epochs before this call, and the CSV's columns."""
     run_dir: str
     rows: list
     best: float = -math.inf
     wall_offset: float = 0.0
+    columns: tuple = METRIC_COLUMNS
 
     @property
     def epoch(self) -> int:
@@ -84,7 +85,7 @@ class RunLog:
         self.rows.append(row)
         primary = dist.is_primary()
         if primary:
-            write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows)
+            write_rows(os.path.join(self.run_dir, "metrics.csv"), self.rows, self.columns)
         epoch = int(row["epoch"])
         ckpt.save(self.run_dir, state, epoch, save_buffer=cfg.save_buffer,
                   keep=cfg.keep_checkpoints)   # CheckpointSaveError: one line, run resumable
@@ -225,11 +226,12 @@ def _quiet_failed_reads() -> None:
     sys.unraisablehook = hook
 
 
-def resume(run_dir: str, template):
+def resume(run_dir: str, template, columns: tuple = METRIC_COLUMNS):
     """(state restored from the newest readable checkpoint, its RunLog). metrics.csv is rewritten
-    without the rows of later epochs (a kill between the CSV write and the checkpoint, or an
-    unreadable checkpoint), newer unreadable checkpoints are deleted, and checkpoints_best/ is
-    made to agree with the CSV. No complete checkpoint: warns and starts from epoch 0."""
+    (with `columns`) without the rows of later epochs (a kill between the CSV write and the
+    checkpoint, or an unreadable checkpoint), newer unreadable checkpoints are deleted, and
+    checkpoints_best/ is made to agree with the CSV. No complete checkpoint: warns and starts
+    from epoch 0."""
     metrics_path = os.path.join(run_dir, "metrics.csv")
     primary = dist.is_primary()
     dist.on_primary(ckpt.remove_partial, run_dir)
@@ -242,9 +244,9 @@ def resume(run_dir: str, template):
              "epoch); starting it again from epoch 0")
         if primary:
             ckpt.remove_steps(run_dir, ckpt.all_steps(run_dir, best=True), best=True)
-            write_rows(metrics_path, [])
+            write_rows(metrics_path, [], columns)
         dist.barrier("daddpg-resume")
-        return template, RunLog(run_dir, [])
+        return template, RunLog(run_dir, [], columns=columns)
     state, step, bad = _restore_newest_readable(run_dir, template, steps)
     if state is None:
         raise ckpt.CheckpointError(
@@ -256,10 +258,11 @@ def resume(run_dir: str, template):
         warn(f"resuming from checkpoint {step}; deleting the unreadable checkpoint(s) "
              f"{', '.join(str(s) for s, _ in bad)}")
     rows = [r for r in rows if int(r["epoch"]) <= step]
-    log = RunLog(run_dir, rows, wall_offset=float(rows[-1]["wall_time"]) if rows else 0.0)
+    log = RunLog(run_dir, rows, wall_offset=float(rows[-1]["wall_time"]) if rows else 0.0,
+                 columns=columns)
     if primary:
         ckpt.remove_steps(run_dir, [s for s, _ in bad])
-        write_rows(metrics_path, rows)
+        write_rows(metrics_path, rows, columns)
         log.best = _reconcile_best(run_dir, rows)
     dist.barrier("daddpg-resume")
     return state, log

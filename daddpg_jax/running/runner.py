@@ -6,7 +6,8 @@
 RUN_DIR layout::
 
     config.json          TrainConfig, env overrides, package versions, device, git revision
-    metrics.csv          one row per epoch (columns: metric_columns.METRIC_COLUMNS)
+    metrics.csv          one row per epoch (columns: metric_columns.METRIC_COLUMNS; with
+                         cross_check also CROSS_COLUMNS: daddpg_jax/running/cross_check.py)
     learning_curve.png   test success vs env steps
     checkpoints/{step}   orbax checkpoints (last ``keep_checkpoints``), step = epoch number
     checkpoints_best/{step}  the checkpoint with the best test success (earliest of ties),
@@ -42,9 +43,11 @@ from daddpg_jax import variants
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.train import StageClock, make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.running import cross_check as xcheck
 from daddpg_jax.running import distributed as dist
 from daddpg_jax.running import resources, run_record, tracking
 from daddpg_jax.running.levels import reaches
+from daddpg_jax.running.metric_columns import metric_columns
 from daddpg_jax.running.run_record import (
     RunLog,
     check_resume_layout,
@@ -95,11 +98,35 @@ class RunResult:
     """why the run stopped: a key of STOP_REASONS"""
     why: str = ""
     """STOP_REASONS[stopped] with the run's values"""
+    cross: dict = field(default_factory=dict)
+    """with cross_check: physics, engine, and the last row's test_success_best,
+    cross_success_best and cross_best_epoch; {} without"""
 
     def summary(self) -> str:
         why = f"; stopped: {self.why}" if self.why else ""
+        cross = ""
+        if self.cross:
+            c = self.cross
+            epoch = "" if self._best_epoch() is None else f" (epoch {self._best_epoch()})"
+            cross = (f"; best checkpoint{epoch}: test success {c['test_success_best']:.3f} on "
+                     f"{c['physics']}, {c['cross_success_best']:.3f} on {c['engine']} "
+                     "(--cross-check)")
         return (f"run {self.run_dir}: {self.epochs} epochs, {self.env_steps:,} env steps, "
-                f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}{why}")
+                f"{self.wall_time:.0f} s, test success {self.test_success_rate:.3f}{why}{cross}")
+
+    def cross_warning(self) -> str | None:
+        """With cross_check: the warning line (without 'warning: ') when the two engines'
+        success at the best checkpoint part by more than cross_check.PART_TOLERANCE; else
+        None."""
+        if not self.cross:
+            return None
+        c = self.cross
+        return xcheck.parting_warning(c["test_success_best"], c["cross_success_best"],
+                                      c["physics"], c["engine"], self._best_epoch())
+
+    def _best_epoch(self) -> int | None:
+        epoch = self.cross.get("cross_best_epoch", math.nan)
+        return None if math.isnan(epoch) else int(epoch)
 
 
 
@@ -119,6 +146,14 @@ def make_env(cfg: TrainConfig, env_overrides: dict | None = None):
     return mjx_envs.make(cfg.task, physics=cfg.physics, **(env_overrides or {}))
 
 
+def make_test_env(cfg: TrainConfig, env_overrides: dict | None = None):
+    """A run's test env on its own: the task of cfg on cfg.physics with the run's env overrides
+    and the training-only task options off (``mjx_envs.registry.test_overrides``), what
+    ``daddpg-evaluate RUN --physics E`` builds from a run's config.json
+    (``evaluation.load_policy``) and what ``--cross-check`` plays the best checkpoint on."""
+    return make_env(cfg, {**(env_overrides or {}), **registry.test_overrides(cfg.task)})
+
+
 def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
     """The env of test episodes: the task without its training-only options
     (mjx_envs.registry.test_overrides: goals at rest height, grasped-state starts), so that
@@ -129,7 +164,7 @@ def make_eval_env(cfg: TrainConfig, env_overrides: dict | None = None):
     train_cfg = registry.task_config(cfg.task, **env_overrides)
     if all(getattr(train_cfg, k) == v for k, v in test.items()):
         return None
-    return make_env(cfg, {**env_overrides, **test})
+    return make_test_env(cfg, env_overrides)
 
 
 def check_physics_backend(physics: str | None, num_envs: int,
@@ -218,6 +253,7 @@ def train(cfg: TrainConfig, options: RunOptions) -> RunResult:
                                 stop_at_success=opts.stop_at_success))
     if opts.make_env is None:
         check_physics_backend(cfg.physics, cfg.num_envs)
+    xcheck.check(cfg.physics, cfg.cross_check)
     dist.on_primary(prepare_run_dir, opts.run_dir, opts.resume, opts.force,
                     errors=(RunDirError, ValueError, OSError))
     try:
@@ -246,11 +282,15 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
                          eval_env=eval_env,
                          eval_chunk=default_chunk(getattr(env, "physics", cfg.physics)))
     check_memory(fns, cfg)
+    # --cross-check: the other engine's test env, built once (its evaluation compiles once)
+    cross = (xcheck.CrossCheck.build(cfg, run_dir, lambda c: _test_env_of(c, opts))
+             if cfg.cross_check else None)
+    columns = metric_columns(cfg.cross_check)
     state = fns.init(jax.random.PRNGKey(cfg.seed))
     if opts.resume:
-        state, log = resume(run_dir, state)
+        state, log = resume(run_dir, state, columns)
     else:
-        log = RunLog(run_dir, [])
+        log = RunLog(run_dir, [], columns=columns)
         if dist.is_primary():
             extra = {"distributed": layout.to_dict()} if layout is not None else {}
             ckpt.save_config(run_dir, cfg, env_overrides=opts.env_overrides,
@@ -263,7 +303,7 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     try:
         if on_start is not None and dist.is_primary():
             on_start(epoch)
-        run = _Run(cfg, opts, env, eval_env or env, fns, clock, log, trackers)
+        run = _Run(cfg, opts, env, eval_env or env, fns, clock, log, trackers, cross)
         state, stopped = run.epochs(state)
     finally:
         for t in trackers:
@@ -277,7 +317,30 @@ def _train(cfg: TrainConfig, opts: RunOptions) -> RunResult:
     last = log.rows[-1]
     return RunResult(run_dir, int(last["epoch"]), int(last["env_steps"]),
                      float(last["wall_time"]), float(last["test_success_rate"]), log.rows,
-                     stopped, why)
+                     stopped, why, _cross_result(cfg, env, cross, last))
+
+
+def _test_env_of(cfg: TrainConfig, opts: RunOptions):
+    """The test env of `cfg` (the --cross-check engine's): `make_test_env`, or the caller's
+    ``RunOptions.make_env``."""
+    if opts.make_env is not None:
+        return opts.make_env(cfg, opts.env_overrides)
+    return make_test_env(cfg, opts.env_overrides)
+
+
+def _cross_result(cfg: TrainConfig, env, cross, last: dict) -> dict:
+    """RunResult.cross: the two engines and the last row's cross-check columns as numbers
+    (NaN where empty); {} when off."""
+    if cross is None:
+        return {}
+    out = dict(physics=getattr(env, "physics", None) or xcheck.resolved_physics(cfg.physics),
+               engine=cfg.cross_check)
+    for k in ("test_success_best", "cross_success_best", "cross_best_epoch"):
+        try:
+            out[k] = float(last.get(k))
+        except (TypeError, ValueError):
+            out[k] = math.nan
+    return out
 
 
 @dataclass
@@ -292,6 +355,8 @@ class _Run:
     clock: StageClock
     log: RunLog
     trackers: list
+    cross: Any = None
+    """--cross-check: the other engine (cross_check.CrossCheck), None when off"""
 
     def epochs(self, state):
         """Epochs until a stop rule; (the last state, why it stopped: a key of STOP_REASONS)."""
@@ -339,6 +404,8 @@ class _Run:
                          epoch_s)
         row.update(rollout_time=clock.rollout_s, update_time=clock.update_s,
                    eval_time=time.perf_counter() - t_eval)
+        if self.cross is not None:   # before commit: the best's rule needs the earlier best
+            row.update(self.cross.columns(state, epoch + 1, success_of(row), self.log.best))
         return state, row
 
     def video(self, state, epoch: int, env_steps: int) -> None:

@@ -3,10 +3,11 @@
 The runner (``daddpg_jax.running.runner.train``) gives each logger the run's config once
 (``start``), then every metrics.csv row as it is written (``log_row``) and, with
 ``--video-every``, the evaluation videos (``log_video``). Every column of ``METRIC_COLUMNS``
-(`daddpg_jax.running.metric_columns`) is logged against ``env_steps`` under the tag
-``tag(column)`` (``test/success_rate``, ``losses/critic_loss``, ``time/rollout_time``, ...); a
-value that is NaN (``bc_loss`` and ``q_filter_pass`` without demonstrations, the stage times on
-several devices, a fault rate an env does not report) is left out.
+(`daddpg_jax.running.metric_columns`), and with ``--cross-check`` of ``CROSS_COLUMNS``, is
+logged against ``env_steps`` under the tag ``tag(column)`` (``test/success_rate``,
+``losses/critic_loss``, ``time/rollout_time``, ``cross/success_best``, ...); a value that is
+NaN (``bc_loss`` and ``q_filter_pass`` without demonstrations, the stage times on several
+devices, a fault rate an env does not report) is left out.
 
     tensorboard --logdir runs/            # RUN_DIR/tensorboard/ of every run
 
@@ -26,7 +27,7 @@ import json
 import math
 import os
 
-from daddpg_jax.running.metric_columns import METRIC_COLUMNS
+from daddpg_jax.running.metric_columns import CROSS_COLUMNS, METRIC_COLUMNS
 from mjx_envs.schema import ConfigError
 
 TB_DIR = "tensorboard"
@@ -42,8 +43,9 @@ _GROUPS = {
 
 def tag(column: str) -> str:
     """The TensorBoard / W&B tag of a metrics.csv column: test_* -> test/*, train_* ->
-    train/*, losses and Q -> losses/*, timings and rates -> time/*, counters -> progress/*."""
-    for prefix in ("test", "train"):
+    train/*, cross_* -> cross/* (--cross-check), losses and Q -> losses/*, timings and rates
+    -> time/*, counters -> progress/*."""
+    for prefix in ("test", "train", "cross"):
         if column.startswith(prefix + "_"):
             return f"{prefix}/{column[len(prefix) + 1:]}"
     for group, cols in _GROUPS.items():
@@ -60,9 +62,11 @@ def _value(v) -> float:
 
 
 def row_scalars(row: dict) -> dict[str, float]:
-    """{tag: value} of a metrics.csv row: every column of METRIC_COLUMNS but env_steps (the
-    x axis), except those that are NaN in this row (e.g. bc_loss without demonstrations)."""
-    values = {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS if c != "env_steps"}
+    """{tag: value} of a metrics.csv row: every column of METRIC_COLUMNS (and of CROSS_COLUMNS
+    that the row has) but env_steps (the x axis), except those that are NaN in this row (e.g.
+    bc_loss without demonstrations)."""
+    values = {tag(c): _value(row.get(c)) for c in METRIC_COLUMNS + CROSS_COLUMNS
+              if c != "env_steps"}
     return {k: v for k, v in values.items() if not math.isnan(v)}
 
 
