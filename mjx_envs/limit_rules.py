@@ -10,9 +10,11 @@ the trainer's env under ``daddpg-train --limits`` (`mjx_envs.core.DualArmEnv.lim
 3. **arm clearance**: the link points after the move are predicted (the distal points move with
    the arm's motion from its measured tool position, the elbow by half of it); a move whose
    predicted capsule gap is below ``min_clearance`` and smaller than the current gap is refused.
-   Candidates in order: stop the arm that moves less, then the other, then both; a stopped arm
-   keeps its previous target, else moves towards its measured tool position by at most
-   ``max_step`` (inside its box); when none is safe both keep their previous targets;
+   Candidates in order: the move shortened to `SHORTER` of itself (both arms go on, less far:
+   arms approaching each other end at the limit instead of a full step short of it), then stop
+   the arm that moves less, then the other, then both; a stopped arm keeps its previous target,
+   else moves towards its measured tool position by at most ``max_step`` (inside its box); when
+   none is safe both keep their previous targets;
 4. **finger range**: each finger opening clipped to ``[finger_low, finger_high]``.
 
 Static shapes, float32, no Python branching on values (`xp.where`), so the JAX version traces
@@ -32,6 +34,8 @@ NUM_ARMS = 2
 LINK_FOLLOW = np.array([0.0, 0.5, 1.0, 1.0, 1.0], np.float32)
 """How far each link point (shoulder, elbow, wrist 1, flange, tool centre) moves with the
 target in one period (first order)."""
+SHORTER = (0.5, 0.25)
+"""the fractions of a refused move tried before an arm is stopped (the clearance rule)"""
 FLAT_SIZE = 16
 """Values of `Limits.flat`: box low [2 x 3], box high [2 x 3], max_step, min_clearance,
 finger_low, finger_high (the env setting ``robot_limits``)."""
@@ -98,11 +102,11 @@ def limit_clearance(xp, limits: Limits, current, target, link_points, tool):
     arm = xp.arange(NUM_ARMS)
     stop_less, stop_more = arm == less, arm != less
     stop_both = xp.ones((NUM_ARMS,), bool)
-    cands = [target]
+    cands = [target] + [cur + xp.float32(f) * (target - cur) for f in SHORTER]
     for stopped in (stop_less, stop_more, stop_both):
         for hold in (cur, towards_tool):
             cands.append(xp.where(stopped[:, None], hold, target))
-    cands = xp.stack(cands)  # [7, 2, 3]: the move itself first
+    cands = xp.stack(cands)  # [9, 2, 3]: the move itself first
     now = arm_clearance(xp, lp)
     gaps = arm_clearance(xp, predict_link_points(xp, lp[None], cands - tool[None]))
     ok = (gaps >= limits.min_clearance) | (gaps >= now)

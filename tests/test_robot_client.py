@@ -142,20 +142,32 @@ def test_clearance_rule_refuses_approach_and_allows_separation():
     lp = _parallel_arms(radii + 0.04)  # 4 cm gap
     assert f.clearance(lp) == pytest.approx(0.04, abs=1e-5)
     cur = lp[:, -1].copy()  # targets at the tool points
-    # left arm moves 3 cm towards the right arm: predicted gap 1 cm < 2 cm -> refused
+    # left arm moves 3 cm towards the right arm: predicted gap 1 cm < 2 cm -> refused; half
+    # of it (gap 2.5 cm) goes
     prop = cur + np.array([[0.0, -0.03, 0.0], [0.0, 0.0, 0.0]], np.float32)
     d = f.filter(cur, prop, lp, tool=cur)
     assert "clearance" in d.reasons and not d.stopped
-    np.testing.assert_allclose(d.target, cur)
-    # both approach: stopping one is not enough -> both stop
+    np.testing.assert_allclose(d.target, cur + 0.5 * (prop - cur), atol=1e-6)
+    # both approach by 3 cm: half is too far (gap 1 cm), a quarter goes (gap 2.5 cm)
     prop = cur + np.array([[0.0, -0.03, 0.0], [0.0, 0.03, 0.0]], np.float32)
     d = f.filter(cur, prop, lp, tool=cur)
-    np.testing.assert_allclose(d.target, cur)
-    # both approach by 2 cm: stopping one of them keeps the 2 cm limit
+    np.testing.assert_allclose(d.target, cur + 0.25 * (prop - cur), atol=1e-6)
+    assert d.clearance_after >= 0.02 - 1e-6
+    # both approach by 2 cm: half of it ends at the 2 cm limit
     prop = cur + np.array([[0.0, -0.02, 0.0], [0.0, 0.02, 0.0]], np.float32)
     d = f.filter(cur, prop, lp, tool=cur)
     assert "clearance" in d.reasons and d.clearance_after >= 0.02 - 1e-6
-    assert sum(np.allclose(d.target[i], cur[i]) for i in range(2)) == 1
+    np.testing.assert_allclose(d.target, cur + 0.5 * (prop - cur), atol=1e-6)
+    # left approaches by 10 cm, right moves 10 cm sideways: even a quarter is too far; the
+    # arm that moves less (a tie: left) stops and right goes on
+    prop = cur + np.array([[0.0, -0.1, 0.0], [-0.1, 0.0, 0.0]], np.float32)
+    d = f.filter(cur, prop, lp, tool=cur)
+    np.testing.assert_allclose(d.target[0], cur[0])
+    np.testing.assert_allclose(d.target[1], prop[1])
+    # both approach by 10 cm: nothing but stopping both keeps the gap
+    prop = cur + np.array([[0.0, -0.1, 0.0], [0.0, 0.1, 0.0]], np.float32)
+    d = f.filter(cur, prop, lp, tool=cur)
+    np.testing.assert_allclose(d.target, cur)
     # left approaches a little (predicted gap 3 cm >= limit): allowed
     prop = cur + np.array([[0.0, -0.01, 0.0], [0.0, 0.0, 0.0]], np.float32)
     d = f.filter(cur, prop, lp, tool=cur)

@@ -14,7 +14,8 @@ Applied every control period by the robot client, in this order:
    measured tool position) and the elbow by half of it (shoulders fixed), and the capsule gap
    between the arms is computed with ``mjx_envs.observation.arm_clearance`` (the trainer's own
    arm-contact check). A move whose predicted gap is below ``min_clearance`` and smaller than
-   the current gap is refused: first one arm is stopped (the one that moves less), else both;
+   the current gap is refused: it is tried at half and a quarter of its length, then one arm
+   is stopped (the one that moves less), else both;
    a stopped arm keeps its previous target if that is safe, else moves towards its measured
    position by at most ``max_step`` (inside its box), else keeps its previous target. Moves
    that increase the gap are always allowed, so arms that are too close can separate.
@@ -190,8 +191,9 @@ class SafetyFilter:
         (`mjx_envs.limit_rules.limit_clearance`).
 
         The arm is assumed to travel from its measured tool position ``tool`` [2, 3] (default:
-        the current targets) to the new target within the period. A refused move stops one arm
-        (the one that moves less first), else the other, else both; a stopped arm keeps its
+        the current targets) to the new target within the period. A refused move is tried
+        shorter (`mjx_envs.limit_rules.SHORTER`), then stops one arm (the one that moves less
+        first), else the other, else both; a stopped arm keeps its
         previous target when that is safe (holding the measured position instead would let a
         real or simulated arm sag under gravity step after step), else moves towards its
         measured position by at most ``max_step``.
