@@ -1,6 +1,8 @@
 """Evaluation of a trained run (daddpg_jax/analysis/evaluation.py, experiments/evaluate.py): Wilson
 interval, output fields, agreement with the run's own logged test success, CLI and video."""
 
+import csv
+import dataclasses
 import json
 import os
 import subprocess
@@ -9,11 +11,18 @@ import sys
 import numpy as np
 import pytest
 
+from daddpg_jax.algo import losses, replay
+from daddpg_jax.algo import train as train_lib
 from daddpg_jax.analysis import evaluation
 from daddpg_jax.cli import evaluate as evaluate_cli
+from daddpg_jax.deploy import NumpyPolicy
+from daddpg_jax.running import checkpoint as ckpt
+from daddpg_jax.running import runner
+from daddpg_jax.running.checkpoint_policy import RunPolicy
+from daddpg_jax.running.export import export_run
 from daddpg_jax.running.runner import train
 from tests import conftest
-from tests.conftest import call_main, run_options
+from tests.conftest import call_main, run_options, tree_equal
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 N_TEST = 12
@@ -94,6 +103,52 @@ def test_no_checkpoint_is_a_clear_error(tmp_path, run_dir):
         evaluation.load_policy(run_dir, step=1, best=True)
     with pytest.raises(evaluation.NoCheckpointError, match="no best checkpoint"):
         evaluation.load_policy(str(empty), best=True)
+
+
+def test_loader_builds_no_training_step(run_dir, policy, monkeypatch, tmp_path):
+    """Evaluation and export load a run through one loader (`checkpoint_policy`) that builds no
+    training step: with make_train_fns, the learner (optimizers) and the replay buffer's init
+    made to fail, the run loads, evaluates (the trainer's logged test success; on the module
+    policy's compiled rollout) and exports; its actors and normalizers equal those of the
+    TrainState restored the old way (a make_train_fns(...).init() template) and act bit for bit
+    as that state's ``act`` on a fixed batch. ~2 s on a 2-core CPU (3.5 s under load) beside
+    the module's trained run and policy (the old way's init and both acts compile)."""
+    def refuse(*a, **k):
+        raise AssertionError("the policy loader built (part of) the training step")
+
+    for obj, name in ((train_lib, "make_train_fns"), (runner, "make_train_fns"),
+                      (losses, "make_learner"), (losses, "init_agent_state"), (replay, "init")):
+        monkeypatch.setattr(obj, name, refuse)
+    loaded = evaluation.load_policy(run_dir)   # checkpoint_policy.load_run_policy
+    assert isinstance(loaded, RunPolicy) and loaded.variant.name == TINY.algo
+    assert loaded.step == 1 and loaded.cfg == TINY
+    s, _ = evaluation.evaluate(dataclasses.replace(policy, params=loaded.params), episodes=N_TEST)
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        row = list(csv.DictReader(f))[-1]
+    assert s["success_rate"] == pytest.approx(float(row["test_success_rate"]))
+    assert s["final_distance_mean"]["left"] == pytest.approx(
+        float(row["test_final_distance_left"]), rel=1e-4)
+    exported = NumpyPolicy.load(export_run(run_dir, str(tmp_path / "p.npz")))
+    monkeypatch.undo()
+    # the old way: the training step's template (smallest buffer), restored
+    cfg, _ = ckpt.load_config(run_dir)
+    fns = train_lib.make_train_fns(loaded.env, cfg.replace(buffer_size=1, n_demos=0))
+    state, step = runner.restore_readable(run_dir, fns.init())
+    assert step == loaded.step
+    assert tree_equal(loaded.params.actor, state.agent.actor)
+    assert tree_equal(loaded.params.obs_norm, state.obs_norm)
+    assert tree_equal(loaded.params.goal_norm, state.goal_norm)
+    rng = np.random.default_rng(0)
+    o = rng.normal(0.0, 1.0, (64, 2, loaded.env.obs_size)).astype(np.float32)
+    o[:6] *= 300.0   # some beyond clip_obs and the normalizer clip
+    g = rng.uniform(-0.5, 0.8, (64, 2, 3)).astype(np.float32)
+    expected = np.asarray(fns.act(state, o, g))
+    np.testing.assert_array_equal(np.asarray(loaded.act(loaded.params, o, g)), expected)
+    layers = state.agent.actor["params"]
+    for i, (w, b) in enumerate(zip(exported.weights, exported.biases, strict=True)):
+        np.testing.assert_array_equal(w, np.asarray(layers[f"Dense_{i}"]["kernel"]))
+        np.testing.assert_array_equal(b, np.asarray(layers[f"Dense_{i}"]["bias"]))
+    np.testing.assert_allclose(exported.act(o, g), expected, atol=1e-5, rtol=0)
 
 
 def test_best_checkpoint(run_dir, policy):

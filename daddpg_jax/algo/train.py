@@ -45,7 +45,7 @@ from flax import struct
 from jax.experimental import io_callback
 
 from daddpg_jax import variants
-from daddpg_jax.algo import acting, losses, replay
+from daddpg_jax.algo import acting, actors, losses, replay
 from daddpg_jax.algo import networks as nets
 from daddpg_jax.algo import normalizer as norm
 from daddpg_jax.algo import sharding as shd
@@ -205,13 +205,8 @@ def _setup(env, cfg: TrainConfig, demo_policy: Callable | None) -> _Setup:
                   demo_policy=demo_policy)
 
 
-def _norm_kw(cfg: TrainConfig) -> dict:
-    return dict(eps=cfg.norm_eps, clip=cfg.norm_clip, clip_obs=cfg.clip_obs)
-
-
 def _normalize_inputs(cfg: TrainConfig, state: TrainState, o, g):
-    kw = _norm_kw(cfg)
-    return norm.normalize(state.obs_norm, o, **kw), norm.normalize(state.goal_norm, g, **kw)
+    return actors.normalize_inputs(cfg, actors.of_state(state), o, g)
 
 
 def _acting_fns(setup: _Setup):
@@ -222,12 +217,7 @@ def _acting_fns(setup: _Setup):
 
     def act(state: TrainState, obs, desired_goal):
         """Deterministic joint action [..., 8] for observations [..., 2, obs], goals [..., 2, 3]."""
-        lead = obs.shape[:-2]
-        o = obs.reshape((-1,) + obs.shape[-2:])
-        g = desired_goal.reshape((-1,) + desired_goal.shape[-2:])
-        o, g = _normalize_inputs(cfg, state, o, g)
-        pi = losses.policy_actions(learner, state.agent.actor, o, g)
-        return nets.joint_action(pi).reshape(lead + (env.action_size,))
+        return actors.act(cfg, actors.of_state(state), obs, desired_goal)
 
     def rollout_keys(state: TrainState, reset_keys, k_scan, explore: bool):
         """One episode per reset key; k_scan: the key carried through the steps."""
@@ -335,7 +325,7 @@ def _update_batch(setup: _Setup, state: TrainState, key, demo_rows):
                                    setup.env.compute_reward, **n_step)
         b = {name: jnp.concatenate([b[name], d[name]]) for name in b}
     o, g = _normalize_inputs(cfg, state, b["o"], b["g"])
-    o2 = norm.normalize(state.obs_norm, b["o2"], **_norm_kw(cfg))
+    o2 = norm.normalize(state.obs_norm, b["o2"], **actors.norm_kw(cfg))
     batch = dict(o=o, o2=o2, g=g, a=b["a"],
                  r=losses.agent_rewards(setup.learner.variant, b["r"]))
     if cfg.n_step > 1:

@@ -7,12 +7,13 @@ contact, final goal distances, and an optional video.
     result, traj = evaluation.evaluate(policy, episodes=200, seed=0)
     evaluation.write_video(policy, traj, "reach.mp4", n_episodes=3)
 
-The env is rebuilt from the run's ``config.json`` (task, physics, env overrides; the
+`load_policy` is ``daddpg_jax.running.checkpoint_policy.load_run_policy``, the loader export
+uses too: the env is rebuilt from the run's ``config.json`` (task, physics, env overrides; the
 training-only task options, ``mjx_envs.settings.TRAINING_ONLY_FIELDS``, are switched off with
-``mjx_envs.registry.test_overrides``, as in the trainer's test episodes), the agents and
-normalizers are restored from ``RUN_DIR/checkpoints/{step}`` (``best=True``: the checkpoint with
-the best test success, ``RUN_DIR/checkpoints_best/``) into a template made by
-``make_train_fns(...).init()`` (with a tiny replay buffer: the buffer is not needed to act), and
+``mjx_envs.registry.test_overrides``, as in the trainer's test episodes), and the actors and
+normalizers alone are restored from ``RUN_DIR/checkpoints/{step}`` (``best=True``: the checkpoint
+with the best test success, ``RUN_DIR/checkpoints_best/``) into a target from the networks' and
+normalizers' own init functions (no training step, replay buffer or optimizer state is built).
 N episodes run at once with deterministic actors (one vmapped, jitted rollout). Episode i's
 reset key is ``split(split(PRNGKey(seed))[0], N)[i]``, the same derivation as the trainer's
 per-epoch evaluation, so ``seed = eval_seed`` (the default) and ``N = n_test_episodes``
@@ -43,13 +44,12 @@ import os
 import sys
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from daddpg_jax.running import checkpoint_policy
 from mjx_envs import observation as obs_lib
-from mjx_envs import registry, settings
+from mjx_envs import registry
 from mjx_envs.settings import MJX_CPU_CHUNK  # noqa: F401 (part of this module's interface)
 
 # MuJoCo picks its OpenGL backend when it is first imported: headless EGL unless told otherwise
@@ -82,20 +82,12 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     return (lo, hi)
 
 
-class NoCheckpointError(FileNotFoundError):
-    """RUN_DIR has no config.json or no (such) checkpoint."""
+NoCheckpointError = checkpoint_policy.RunPolicyError
+"""RUN_DIR has no config.json or no (such, readable) checkpoint (the loader's error)."""
 
-
-@dataclass
-class Policy:
-    run_dir: str
-    step: int
-    cfg: Any           # TrainConfig (buffer shrunk)
-    payload: dict      # config.json
-    env: Any
-    fns: Any           # TrainFns
-    state: Any         # restored TrainState
-    best: bool = False  # restored from checkpoints_best/ (the best test success)
+Policy = checkpoint_policy.RunPolicy
+"""A run's policy and env (``checkpoint_policy.RunPolicy``): ``act(params, obs, goal)`` plays
+the episodes; `train_video` makes one of the trainer's own ``act`` and TrainState."""
 
 
 def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
@@ -104,47 +96,19 @@ def standard_env_overrides(task: str, env_overrides: dict | None) -> dict:
     return {**(env_overrides or {}), **registry.test_overrides(task)}
 
 
-
 def load_policy(run_dir: str, step: int | None = None, physics: str | None = None,
                 best: bool = False, physics_version: int | None = None,
                 robot_limits: tuple | None = None) -> Policy:
     """Rebuilds the run's env and restores checkpoint ``step`` (default: latest), or with
-    ``best`` the run's best checkpoint (the epoch of its best test success). The env simulates
+    ``best`` the run's best checkpoint (the epoch of its best test success), without building
+    the training step (``checkpoint_policy.load_run_policy``). The env simulates
     the physics version the run was trained on, or ``physics_version`` (one warning line when
     that acts unlike the run's). ``robot_limits``: the env setting of a robot limits file
     (`daddpg_jax.algo.resolve.limits_values`), applied to every action instead of the run's
-    own (None: the run's; ``()``: none)."""
-    # lazy: these import JAX and MuJoCo (daddpg-evaluate --help stays JAX-free)
-    from daddpg_jax.algo.train import make_train_fns
-    from daddpg_jax.running import checkpoint as ckpt
-    from daddpg_jax.running.runner import make_env, restore_readable
-
-    if best and step is not None:
-        raise NoCheckpointError("give a checkpoint step or best, not both")
-    try:
-        ckpt.check_run_dir(run_dir, step, best=best)
-        cfg, payload = ckpt.load_config(run_dir)
-    except ckpt.RunDirError as e:   # ConfigFileError too: one line naming the file
-        raise NoCheckpointError(str(e)) from None
-    if physics is not None:
-        cfg = cfg.replace(physics=physics)
-    # acting needs no replay buffer: a template with the smallest one (num_envs episodes);
-    # nor the demonstrations (n_demos > 0 would play them again to build the template)
-    cfg = cfg.replace(buffer_size=1, n_demos=0)
-    overrides = standard_env_overrides(cfg.task, payload.get("env_overrides"))
-    if physics_version is not None:
-        ckpt.physics_note(run_dir, payload, cfg.task, simulated=physics_version,
-                          engine=cfg.physics if cfg.physics in settings.ENGINES else None)
-        overrides["physics_version"] = int(physics_version)
-    if robot_limits is not None:
-        overrides["robot_limits"] = tuple(robot_limits)
-    env = make_env(cfg, overrides)
-    fns = make_train_fns(env, cfg)
-    try:   # the newest readable checkpoint (a warning for each unreadable newer one)
-        state, step = restore_readable(run_dir, fns.init(), step, best=best)
-    except ckpt.CheckpointError as e:
-        raise NoCheckpointError(str(e)) from None
-    return Policy(run_dir, int(step), cfg, payload, env, fns, state, best=bool(best))
+    own (None: the run's; ``()``: none). NoCheckpointError when it cannot be loaded."""
+    return checkpoint_policy.load_run_policy(run_dir, step, best=best, physics=physics,
+                                             physics_version=physics_version,
+                                             robot_limits=robot_limits)
 
 
 class EngineHang(RuntimeError):
@@ -188,24 +152,24 @@ def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
     records [T, n, ...], first states, desired goals [n, 2, 3])."""
     import jax  # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
 
-    key_ = (id(policy.env), id(policy.fns), n, tuple(key_shape), np.dtype(key_dtype).str)
+    key_ = (id(policy.env), id(policy.act), n, tuple(key_shape), np.dtype(key_dtype).str)
     if key_ in _ROLLOUTS:
         return _ROLLOUTS[key_]
     keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
-    fn = jax.jit(_rollout_program(policy)).lower(policy.state, keys).compile()   # before any
+    fn = jax.jit(_rollout_program(policy)).lower(policy.params, keys).compile()  # before any
     _ROLLOUTS[key_] = fn                                                  # watchdog runs
     return fn
 
 
 def _rollout_program(policy: Policy):
-    """(state, reset keys [n, 2]) -> (per-step records [T, n, ...], first states, desired goals
+    """(params, reset keys [n, 2]) -> (per-step records [T, n, ...], first states, desired goals
     [n, 2, 3]): the function that ``_rollout_fn`` compiles."""
     # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
     import jax
 
     from daddpg_jax.algo import acting
 
-    env, act = policy.env, policy.fns.act
+    env, act = policy.env, policy.act
 
     def positions(data):   # true object centre [N, 3] and grip points [N, 2, 3]
         sens = env.backend.sensordata(data)
@@ -220,9 +184,9 @@ def _rollout_program(policy: Policy):
                     mocap=env.backend.mocap_pos(s2.data)[:, :2], physics_ok=ok,
                     object=obj, grip=grip)
 
-    def run(state, keys):
+    def run(params, keys):
         def actors(s, _):
-            return act(state, s.obs["observation"], s.obs["desired_goal"])
+            return act(params, s.obs["observation"], s.obs["desired_goal"])
 
         s0, tr = acting.rollout(env, actors, keys, record=record)
         obj, grip = positions(s0.data)
@@ -250,7 +214,7 @@ def run_episodes(policy: Policy, keys, chunk: int | None = None,
         if pad:   # one program for every chunk: repeat the last key, drop its results
             part = np.concatenate([part, np.repeat(part[-1:], pad, 0)])
         what = f"chunk {i + 1}/{-(-n // size)} ({size} episodes, physics {policy.env.physics})"
-        out = run_watched(lambda part=part: jax.device_get(fn(policy.state, part)), watchdog,
+        out = run_watched(lambda part=part: jax.device_get(fn(policy.params, part)), watchdog,
                           what)
         parts.append(_trim(out, size - pad))
     tr = {k: np.concatenate([p[0][k] for p in parts], 1) for k in parts[0][0]}
@@ -275,7 +239,7 @@ def check_episodes_fit(policy: Policy, episodes: int) -> None:
     from daddpg_jax.running import resources
 
     key = jax.ShapeDtypeStruct((2,), np.uint32)
-    out = jax.eval_shape(_rollout_program(policy), policy.state,
+    out = jax.eval_shape(_rollout_program(policy), policy.params,
                          jax.ShapeDtypeStruct((1, 2), np.uint32))
     one = jax.eval_shape(policy.env.reset, key)
     nbytes = episodes * (resources.tree_bytes(out) + 2 * resources.tree_bytes(one) + 8)
@@ -489,8 +453,9 @@ VIDEO_EPISODES = 2
 
 
 def train_video(env, fns, state, path: str):
-    """`epoch_video` of a run's current training state (``runner.RunOptions.video``)."""
-    return epoch_video(Policy("", int(state.cycles), fns.config, {}, env, fns, state), path)
+    """`epoch_video` of a run's current training state (``runner.RunOptions.video``): the
+    trainer's own ``act`` on its TrainState."""
+    return epoch_video(Policy("", int(state.cycles), fns.config, {}, env, fns.act, state), path)
 
 
 def epoch_video(policy: Policy, path: str, n_episodes: int = VIDEO_EPISODES,

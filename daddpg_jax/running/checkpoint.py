@@ -10,7 +10,9 @@ killed run resumes from the last complete checkpoint. The last `keep` checkpoint
 RUN_DIR/checkpoints_best/{step} holds one more: a copy (without the buffer) of the checkpoint
 with the best test success (`save_best`), renamed into place when complete.
 Demonstration episodes (TrainConfig.n_demos) are never saved: `init` plays the same ones again
-from the seed, and restoring keeps the template's.
+from the seed, and restoring keeps the template's. A reader that only acts (evaluation, export:
+``daddpg_jax.running.checkpoint_policy``) restores into an ``algo.actors.ActorParams`` template
+instead: only the actors and normalizers are restored.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import orbax.checkpoint as ocp
 import tensorstore as ts
 from flax import serialization
 
+from daddpg_jax.algo.actors import ActorParams
 from daddpg_jax.algo.config import TrainConfig
 from daddpg_jax.algo.sharding import on_mesh
 from daddpg_jax.running.host import host_info
@@ -438,12 +441,16 @@ def restore(run_dir, template, step: int | None = None, restore_buffer: bool | N
     from `init`, which fixes shapes, dtypes and shardings). restore_buffer=None restores the
     buffer when the checkpoint has one; otherwise the template's buffer is kept. best=True
     reads checkpoints_best/ (the checkpoint with the best test success; no buffer).
+    A template that is an `ActorParams` (``algo.actors.abstract_params``: shapes only) reads
+    the actors and normalizers alone (`_restore_actors`; restore_buffer is then ignored).
     Returns (state, step)."""
     if step is None:
         step = latest_step(run_dir, best)
         if step is None:
             raise FileNotFoundError(f"no checkpoint under {checkpoint_dir(run_dir, best)}")
     step = int(step)
+    if isinstance(template, ActorParams):
+        return _restore_actors(run_dir, template, step, best), step
     if restore_buffer is None:
         restore_buffer = has_buffer(run_dir, step, best)
     elif restore_buffer and not has_buffer(run_dir, step, best):
@@ -474,6 +481,27 @@ def restore(run_dir, template, step: int | None = None, restore_buffer: bool | N
         full["buffer"] = buffer
     full["demos"] = serialization.to_state_dict(template)["demos"]
     return serialization.from_state_dict(template, full), step
+
+
+def _restore_actors(run_dir, template: ActorParams, step: int, best: bool = False) -> ActorParams:
+    """Checkpoint `step`'s actors and normalizers (the saved state's ``agent.actor``,
+    ``obs_norm`` and ``goal_norm``) into the structure of `template`, whose shapes must match
+    the saved ones. Orbax's partial restore reads those arrays only: not the critics, target
+    networks, optimizer states or buffer, and no template of them is built. The arrays come
+    back uncommitted, as `restore` gives them for a template off the device mesh."""
+    parts = serialization.to_state_dict(template)
+    saved = {"agent": {"actor": parts["actor"]}, "obs_norm": parts["obs_norm"],
+             "goal_norm": parts["goal_norm"]}
+    one = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    target = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=one), saved)
+    args = ocp.args.PyTreeRestore(item=target, partial_restore=True,
+                                  restore_args=ocp.checkpoint_utils.construct_restore_args(target))
+    with _manager(run_dir, best=best) as mngr:
+        out = mngr.restore(step, args=ocp.args.Composite(state=args))["state"]
+    out = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), dict(out))
+    return serialization.from_state_dict(template, {"actor": out["agent"]["actor"],
+                                                    "obs_norm": out["obs_norm"],
+                                                    "goal_norm": out["goal_norm"]})
 
 
 def _version(pkg: str) -> str | None:

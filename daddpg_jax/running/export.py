@@ -42,14 +42,12 @@ import jax
 import numpy as np
 
 from daddpg_jax import variants
+from daddpg_jax.algo import actors
 from daddpg_jax.algo import normalizer as norm
-from daddpg_jax.algo.train import make_train_fns
 from daddpg_jax.deploy.policy import FORMAT_VERSION, write_policy_file
-from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running.runner import make_env, restore_readable
+from daddpg_jax.running.checkpoint_policy import RunPolicyError, load_run_policy
 from mjx_envs import limit_rules, schema
 from mjx_envs import observation as obs_lib
-from mjx_envs.registry import test_overrides
 from mjx_envs.settings import PHYSICS_VERSION
 
 
@@ -79,10 +77,12 @@ def policy_arrays(state, cfg, env, source: dict | None = None) -> dict[str, Any]
     """The export's arrays and metadata from a TrainState (no file written).
 
     ``state``: a ``daddpg_jax.algo.train.TrainState`` (only ``agent.actor`` and the normalizers are
-    read); ``cfg``: its TrainConfig; ``env``: the env it was trained on.
+    read) or an ``algo.actors.ActorParams`` (the actors and normalizers a checkpoint's loader
+    restores); ``cfg``: its TrainConfig; ``env``: the env it was trained on.
     """
     variant = variants.get(cfg.algo)
-    actor = jax.device_get(state.agent.actor)
+    state = actors.of_state(state)
+    actor = jax.device_get(state.actor)
     layers = actor["params"]
     names = sorted(layers, key=lambda n: int(n.split("_")[-1]))  # Dense_0, Dense_1, ...
     arrays: dict[str, Any] = {}
@@ -167,37 +167,27 @@ def write_export(arrays: dict[str, Any], out) -> str:
 
 
 def export_state(state, cfg, env, out, source: dict | None = None) -> str:
-    """Exports a TrainState held in memory (tests, notebooks) to ``out`` (.npz or .onnx)."""
+    """Exports a TrainState (or ActorParams) held in memory (tests, notebooks) to ``out`` (.npz
+    or .onnx)."""
     return write_export(policy_arrays(state, cfg, env, source), out)
 
 
 def export_run(run_dir, out, step: int | None = None, best: bool = False) -> str:
     """Exports checkpoint ``step`` (default: latest) of the run in ``run_dir`` to ``out``;
     best=True exports the run's best checkpoint (``checkpoints_best/``, the epoch with the best
-    test success) instead.
+    test success) instead. The run is loaded by ``checkpoint_policy.load_run_policy`` (the env of
+    the standard task: training-only options such as grasped-state starts off, the policy's
+    deployment; the actors and normalizers alone restored, no training step built).
 
     Raises ExportError with a clear message when the run has no config or no checkpoint.
     """
-    run_dir = os.fspath(run_dir)
-    if best and step is not None:
-        raise ExportError("give a checkpoint step or best, not both")
-    try:
-        ckpt.check_run_dir(run_dir, step, best=best)
-        cfg, payload = ckpt.load_config(run_dir)
-    except ckpt.RunDirError as e:   # ConfigFileError too: one line naming the file
-        raise ExportError(str(e)) from None
-    # the standard task (training-only options such as grasped-state starts off): the env the
-    # policy is deployed to, and nothing recorded for training is rebuilt
-    env = make_env(cfg, {**(payload.get("env_overrides") or {}), **test_overrides(cfg.task)})
-    fns = make_train_fns(env, cfg)
-    # abstract template: shapes only, so the (large) replay buffer is never allocated
-    template = jax.eval_shape(fns.init, jax.random.PRNGKey(0))
     try:   # the newest readable checkpoint (a warning for each unreadable newer one)
-        state, used = restore_readable(run_dir, template, step, best=best)
-    except ckpt.CheckpointError as e:
+        pol = load_run_policy(run_dir, step, best=best)
+    except RunPolicyError as e:   # one line naming the run, file or checkpoint
         raise ExportError(str(e)) from None
-    source = dict(run_dir=os.path.abspath(run_dir), checkpoint_step=int(used), best=bool(best),
-                  git_revision=payload.get("git_revision"),
+    cfg, payload = pol.cfg, pol.payload
+    source = dict(run_dir=os.path.abspath(pol.run_dir), checkpoint_step=int(pol.step),
+                  best=bool(best), git_revision=payload.get("git_revision"),
                   env_overrides=payload.get("env_overrides"), train_config=cfg.to_dict(),
-                  physics_version=int(env.config.physics_version))
-    return export_state(state, cfg, env, out, source)
+                  physics_version=int(pol.env.config.physics_version))
+    return export_state(pol.params, cfg, pol.env, out, source)
