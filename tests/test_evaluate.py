@@ -17,7 +17,7 @@ from daddpg_jax.analysis import evaluation
 from daddpg_jax.cli import evaluate as evaluate_cli
 from daddpg_jax.deploy import NumpyPolicy
 from daddpg_jax.running import checkpoint as ckpt
-from daddpg_jax.running import runner
+from daddpg_jax.running import run_record, runner
 from daddpg_jax.running.checkpoint_policy import RunPolicy
 from daddpg_jax.running.export import export_run
 from daddpg_jax.running.runner import train
@@ -133,7 +133,7 @@ def test_loader_builds_no_training_step(run_dir, policy, monkeypatch, tmp_path):
     # the old way: the training step's template (smallest buffer), restored
     cfg, _ = ckpt.load_config(run_dir)
     fns = train_lib.make_train_fns(loaded.env, cfg.replace(buffer_size=1, n_demos=0))
-    state, step = runner.restore_readable(run_dir, fns.init())
+    state, step = run_record.restore_readable(run_dir, fns.init())
     assert step == loaded.step
     assert tree_equal(loaded.params.actor, state.agent.actor)
     assert tree_equal(loaded.params.obs_norm, state.obs_norm)

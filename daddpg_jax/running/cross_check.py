@@ -139,7 +139,7 @@ class CrossCheck:
     def build(cls, cfg: TrainConfig, run_dir: str, make_test_env: Callable) -> CrossCheck:
         """`make_test_env(cfg) -> env`: the runner's builder of a run's test env, called once,
         with the run's config on the other engine."""
-        # acting needs no replay buffer nor demonstrations (as evaluation.load_policy); one
+        # acting needs no replay buffer nor demonstrations (as checkpoint_policy's loader); one
         # device: the acting state is a host copy, placed by the evaluation's jit
         other = cfg.replace(physics=cfg.cross_check, buffer_size=1, n_demos=0, num_devices=1)
         env = make_test_env(other)

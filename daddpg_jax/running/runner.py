@@ -45,7 +45,7 @@ from daddpg_jax.algo.train import StageClock, make_train_fns
 from daddpg_jax.running import checkpoint as ckpt
 from daddpg_jax.running import cross_check as xcheck
 from daddpg_jax.running import distributed as dist
-from daddpg_jax.running import resources, run_record, tracking
+from daddpg_jax.running import resources, tracking
 from daddpg_jax.running.levels import reaches
 from daddpg_jax.running.metric_columns import metric_columns
 from daddpg_jax.running.run_record import (
@@ -59,9 +59,6 @@ from daddpg_jax.running.run_record import (
 from mjx_envs import registry
 from mjx_envs.physics.backends import default_chunk
 from mjx_envs.schema import ConfigError
-
-# defined in run_record, imported from here by the CLI and the analysis tools
-restore_readable = run_record.restore_readable
 
 PHYSICS_FAULT_WARN = 0.01
 """an epoch whose training or test physics-fault rate is above this gets a warning on stderr"""
