@@ -8,6 +8,7 @@ import pytest
 
 import mjx_envs
 from daddpg_jax.algo import resolve
+from daddpg_jax.cli.train import build_parser
 from daddpg_jax.deploy import trained_limits
 from daddpg_jax.deploy.limits import RobotLimits
 from daddpg_jax.deploy.safety import SafetyFilter
@@ -89,6 +90,27 @@ def test_limits_flag_values_and_checks():
     with pytest.raises(ConfigError, match="control period"):
         resolve.limits_values(CELL, None, "reach", {"n_substeps": 2})
     assert limit_rules.from_config(np, type("C", (), {"robot_limits": ()})) is None
+
+
+def test_resume_keeps_the_recorded_limits():
+    """~1.3 s: a run trained under a file records its values; --resume keeps them without
+    --limits, accepts the same file again and refuses another one, or another speed scale."""
+    parser = build_parser()
+    cfg, env_over = resolve.resolve_config(parser.parse_args(
+        ["--task", "reach", "--limits", CELL, "--speed-scale", "0.5"]), None)
+    recorded = tuple(env_over["robot_limits"])
+    assert recorded == resolve.limits_values(CELL, 0.5, "reach", {})
+
+    def load(path):
+        return cfg, dict(env_over)
+
+    for flags in ([], ["--limits", CELL, "--speed-scale", "0.5"]):
+        _, over = resolve.resolve_config(parser.parse_args(["--resume", "runs/x", *flags]),
+                                         load)
+        assert tuple(over["robot_limits"]) == recorded, flags
+    for flags in (["--limits", SIM], ["--limits", CELL], ["--speed-scale", "0.5"]):
+        with pytest.raises(ConfigError, match="--resume: --limits|--speed-scale needs"):
+            resolve.resolve_config(parser.parse_args(["--resume", "runs/x", *flags]), load)
 
 
 def test_the_robot_side_names_its_tighter_limits():
