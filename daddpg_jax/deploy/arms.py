@@ -676,6 +676,9 @@ class ArmsEnv:
                    finger_vel=(((fingers - prev) / self.dt) if r.finger_speed is None
                                else r.finger_speed).astype(np.float32),
                    link_points=links.astype(np.float32))
+        feed = getattr(self.objects, "observe_arms", None)
+        if feed is not None:  # a camera's object source carries a held object between frames
+            feed(grip)
         obj = self.objects.read()
         obs = obs_lib.build_observation(np, arm, obj, self.dt)
         rules = self.spec.rules

@@ -164,6 +164,10 @@ class WatchedObjects:
         self.last = None
         self.source.reset(qpos)
 
+    def observe_arms(self, grip) -> None:
+        """The grippers' positions now, for a source that carries a held object with them."""
+        self.source.observe_arms(grip)
+
     def read(self) -> dict:
         from daddpg_jax.deploy.camera.frames import CameraError  # lazy: the camera package
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import cv2
@@ -422,6 +423,12 @@ class ObjectTracker:
         self.source = est.source
 
 
+HOLD_RADIUS = 0.03
+"""an object point this close to a gripper (m) at a sighting's capture time is held by it"""
+GRIP_HISTORY = 64
+"""grippers' positions kept (control periods: 2.5 s at 25 Hz, more than any frame's age)"""
+
+
 class CameraObjectSource:
     """An object source (``reset(qpos)``, ``read()``) on a camera, an estimator and a
     tracker. ``place``: called with the episode's drawn start ``qpos`` at reset (a simulated
@@ -438,6 +445,7 @@ class CameraObjectSource:
         self.warmup = int(warmup)
         self.last_frame: Frame | None = None
         self.last_estimate: ObjectEstimate | None = None
+        self._grips: deque = deque(maxlen=GRIP_HISTORY)
 
     def reset(self, qpos) -> None:
         if self.place is not None:
@@ -445,15 +453,60 @@ class CameraObjectSource:
         if hasattr(self.camera, "reset"):
             self.camera.reset()
         self.tracker.reset()
+        self._grips.clear()
         for _ in range(self.warmup):
             if self.read()["seen"]:
                 break
+
+    def observe_arms(self, grip) -> None:
+        """The grippers' positions [2, 3] (world) at this moment of the camera's clock: in
+        predict mode an object held by both grippers moves with them from its last sighting's
+        capture time to the present (`carried`)."""
+        self._grips.append((float(self.now()), np.asarray(grip, float).reshape(2, 3).copy()))
 
     def read(self) -> dict:
         frame = self.camera.capture()
         est = self.estimator.estimate(frame)
         self.last_frame, self.last_estimate = frame, est
-        return self.tracker.update(est, self.now())
+        r = self.tracker.update(est, self.now())
+        if self.tracker.mode == "predict" and self.tracker.pos is not None:
+            r = self.carried(r)
+        return r
+
+    def _grips_at(self, t: float):
+        """The grippers' positions at ``t``, interpolated between the observations around it
+        (the last one after them; None: none at or before ``t``)."""
+        before = None
+        for when, grip in self._grips:
+            if when >= t - 1e-9:
+                if before is None or when - before[0] < 1e-9:
+                    return grip if abs(when - t) < 1e-9 else None
+                w = (t - before[0]) / (when - before[0])
+                return (1.0 - w) * before[1] + w * grip
+            before = (when, grip)
+        return None if before is None else before[1]
+
+    def carried(self, reading: dict) -> dict:
+        """``reading`` with the object moved as the grippers moved since the last sighting's
+        capture time, when each of its two points was within `HOLD_RADIUS` of a different
+        gripper then (the arms' readings have no camera latency); else unchanged."""
+        tr, now = self.tracker, float(self.now())
+        then, grips = self._grips_at(tr.t), self._grips_at(now)
+        if then is None or grips is None or now <= tr.t:
+            return reading
+        points = tr.geometry.object_points(tr.pos, tr.R)
+        d = np.linalg.norm(points[:, None, :] - then[None, :, :], axis=-1)  # [point, arm]
+        near = d.argmin(axis=1)
+        if near[0] == near[1] or not np.all(d.min(axis=1) < HOLD_RADIUS):
+            return reading
+        shift = (grips - then)[near].mean(axis=0)
+        pos = tr.pos + shift
+        out = dict(reading)
+        out.update(pos=pos.astype(np.float32),
+                   quat=matrix_to_quat(tr.R).astype(np.float32),
+                   linvel=(shift / (now - tr.t)).astype(np.float32),
+                   object_point=tr.geometry.object_points(pos, tr.R).astype(np.float32))
+        return out
 
 
 def make_object_source(camera, task: str, T_world_cam, method: str = "tag",
