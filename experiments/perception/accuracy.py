@@ -172,6 +172,9 @@ def object_frame(cam, env, detector, T_cal, rng, times, out, lift_max) -> None:
         if est is None:
             continue
         o["centre_mm"].append(1000 * float(np.linalg.norm(est.pos - truth["pos"])))
+        o["with_yaw"].append(est.has_yaw)
+        if not est.has_yaw:  # the pot's lid alone (handles hidden): a position, no yaw
+            continue
         o["points_mm"] += [1000 * float(x) for x in
                            np.linalg.norm(est.points - truth["object_point"], axis=1)]
         o["yaw_deg"].append(yaw_error_deg(est.R, R_true))
@@ -226,7 +229,8 @@ def run(args) -> dict:
     times = {k: [] for k in ("render", "sensor", "detect", "pose", "colour")}
     cal = {"pos_mm": [], "rot_deg": [], "rms_px": [], "tags": [], "refused": []}
     reach = {"found": [], "err_mm": []}
-    objs = {s: {m: {"found": [], "centre_mm": [], "points_mm": [], "yaw_deg": []}
+    objs = {s: {m: {"found": [], "centre_mm": [], "with_yaw": [], "points_mm": [],
+                    "yaw_deg": []}
                 for m in ("tag", "colour")} for s in ("bar", "pot")}
     frames, group = 0, 0
     t_start = time.perf_counter()
@@ -259,6 +263,7 @@ def run(args) -> dict:
                         "refused": cal["refused"]},
         "reach_targets": {"detection": rate(reach["found"]), "err_mm": summary(reach["err_mm"])},
         "objects": {s: {m: {"detection": rate(v["found"]), "centre_mm": summary(v["centre_mm"]),
+                            "with_yaw": rate(v["with_yaw"]),
                             "points_mm": summary(v["points_mm"]),
                             "yaw_deg": summary(v["yaw_deg"])} for m, v in d.items()}
                     for s, d in objs.items()},

@@ -9,9 +9,10 @@ estimated from a frame in two ways, tracked over time, and served as an object s
   by colour (HSV), its pixels back-projected with the depth image into the world, a plane
   fitted to them (the top face's normal), the centre below the face's centroid by the known
   height; the principal axis of the bar's face gives the yaw and the two ends. The pot's yaw
-  comes from its handles' colour, seen from the lid's centre (one handle alone still gives
-  it); while the grippers hide the handles (fewer than ``min_axis_pixels``, or one side less
-  than half the other), the lid gives the position alone and the tracker holds the yaw. A
+  comes from its two handles' colour (their pixels' principal axis, the handles told apart
+  as seen from the lid's centre); while the grippers hide them (fewer than
+  ``min_axis_pixels``, or one side less than half the other: one handle's own axis runs
+  across the pot's), the lid gives the position alone and the tracker holds the yaw. A
   face seen shorter than ``min_extent`` of its known size counts as hidden.
 - `ObjectTracker`: an alpha-beta filter of position and orientation (velocities from the
   sightings' capture times), which holds the last pose (``mode="hold"``, as the paper's robot
@@ -289,10 +290,12 @@ class ColourObjectEstimator:
             parts = self._points(frame, g.axis_hsv)
             if len(parts) < self.min_axis_pixels:  # the handles in the grippers: the lid alone
                 return self._lid_only(face, c, n, frame)
-            a = _radial_axis(parts, c, n)  # the handles seen from the lid's centre
-            side = (parts - c) @ a > 0
+            # the handles told apart as seen from the lid's centre; with both in view, their
+            # pixels' principal axis (one handle's alone runs across the pot's axis)
+            side = (parts - c) @ _radial_axis(parts, c, n) > 0
             if min(side.sum(), (~side).sum()) < 0.5 * max(side.sum(), (~side).sum()):
                 return self._lid_only(face, c, n, frame)  # a handle half hidden: no yaw
+            a, _, _ = _axis(parts, n)
             # the grippers at the handles hide the face along the axis, not across it
             if np.ptp((face - c) @ np.cross(n, a)) < self.min_extent * g.top_size[1]:
                 return None
