@@ -182,6 +182,7 @@ def test_restore_into_abstract_or_demo_free_template(demo_fns, demo_epoch, env, 
     assert tree_equal(restored.obs_norm, s1.obs_norm)
 
 
+@pytest.mark.e2e  # ~7-15 s: kept out of the default tier's 5 minutes
 def test_runner_logs_bc_columns(env, tmp_path):
     import csv
 

@@ -24,6 +24,7 @@ def _run(env, keys, actions):
     return obs, s
 
 
+@pytest.mark.e2e  # ~7-15 s: kept out of the default tier's 5 minutes
 def test_stateful_c_harness_reproduces_the_rollout_backend():
     """mj_step per env with the warmstart zeroed and float32 state = mujoco.rollout (the
     backend), bit for bit; carrying the warmstart changes the trajectory (~4 s)."""

@@ -37,6 +37,7 @@ def _learning_columns(rows):
     return [{k: v for k, v in r.items() if k not in skip} for r in rows]
 
 
+@pytest.mark.e2e  # ~7-15 s: kept out of the default tier's 5 minutes
 def test_epoch_time_is_split_into_rollout_update_and_evaluation(env, tmp_path):
     run = str(tmp_path / "t")
     train(TINY.replace(n_epochs=2), run_options(run, env))

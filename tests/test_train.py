@@ -151,6 +151,7 @@ class _Hooks(EpochHooks):
         self.stages.append(int(stage))
 
 
+@pytest.mark.e2e  # ~7-15 s: kept out of the default tier's 5 minutes
 def test_hooks_per_cycle_and_stage_marks_leave_the_numbers_unchanged(env):
     """The hooks' callbacks (per cycle; rollout/updates stage marks) run at their places, in
     program order, and change no number. ~3 s."""
@@ -166,6 +167,7 @@ def test_hooks_per_cycle_and_stage_marks_leave_the_numbers_unchanged(env):
     assert tree_equal(s, s0) and tree_equal(m, m0)
 
 
+@pytest.mark.e2e  # ~7-15 s: kept out of the default tier's 5 minutes
 def test_stage_clock_splits_the_epoch_between_rollouts_and_updates(env):
     """StageClock as the stage hook: both sums positive and within the epoch's seconds. ~2 s."""
     clock = StageClock()
