@@ -38,10 +38,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from daddpg_jax.deploy.camera.frames import TRACKING
+
 GOALS = ("sampler", "tags")
 OBJECTS = ("sim", "camera-tag", "camera-color")
-TRACKING = ("hold", "predict")
-"""the object tracker's modes (`daddpg_jax.deploy.camera.objects.ObjectTracker`)"""
 CAMERAS = ("sim", "opencv", "realsense")
 CAMERA_STREAM = 0x43414D
 """second seed word of the simulated camera's own random stream ([seed, CAMERA_STREAM])"""

@@ -16,6 +16,10 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+TRACKING = ("hold", "predict")
+"""the object tracker's modes (`daddpg_jax.deploy.camera.objects.ObjectTracker`; here, with
+NumPy only, so that the robot client's ``--track`` names them without OpenCV)"""
+
 
 class CameraError(RuntimeError):
     """A camera that cannot deliver a frame (no device, end of a file, timeout); one line."""

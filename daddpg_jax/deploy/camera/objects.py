@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from daddpg_jax.deploy.camera.frames import (
+    TRACKING,
     Frame,
     apply,
     invert,
@@ -342,7 +343,7 @@ class ObjectTracker:
     velocity estimates are clipped (m/s, rad/s); a sighting more than ``max_gap`` s after the
     last one starts the filter again."""
 
-    MODES = ("hold", "predict")
+    MODES = TRACKING
 
     def __init__(self, geometry: ObjectGeometry, mode: str = "hold", alpha: float = 0.7,
                  beta: float = 0.3, predict_s: float = 0.5, max_speed: float = 2.0,

@@ -37,6 +37,7 @@ import json
 import os
 import platform
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -45,6 +46,9 @@ from daddpg_jax.algo import resolve
 from mjx_envs import limit_rules
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.observation import arm_clearance
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import straight_line_ceiling  # noqa: E402  (beside this file: the same controller)
 
 EPISODES, SEED = 200, 5
 SIM, CELL = "daddpg_jax/deploy/limits/sim.toml", "daddpg_jax/deploy/limits/ur3_cell.toml"
@@ -164,11 +168,7 @@ def straight_line(env, rng):
     """(success, final gap, final distances) per episode of straight_line_ceiling.py."""
     out = []
     for _ in range(EPISODES):
-        res = env.reset(rng)
-        for _ in range(env.episode_length):
-            a = np.zeros((2, 4), np.float32)
-            a[:, :3] = np.clip((res.desired_goal - res.achieved_goal) / env.max_delta, -1, 1)
-            res = env.step(a.reshape(-1))
+        res = straight_line_ceiling.episode(env, rng)
         out.append((bool(res.success), float(res.arm_clearance),
                     res.goal_distance.astype(float).tolist()))
     return out
