@@ -21,6 +21,7 @@ from daddpg_jax.running import run_record, runner
 from daddpg_jax.running.checkpoint_policy import RunPolicy
 from daddpg_jax.running.export import export_run
 from daddpg_jax.running.runner import train
+from mjx_envs import episode_starts
 from tests import conftest
 from tests.conftest import call_main, run_options, tree_equal
 
@@ -159,14 +160,124 @@ def test_best_checkpoint(run_dir, policy):
 
 
 def test_cli_json_and_error(run_dir, tmp_path, capsys):
-    """daddpg-evaluate's main in this process (~2 s)."""
-    code = call_main(evaluate_cli.main, [run_dir, "--episodes", "8", "--seed", "3", "--json"])
+    """daddpg-evaluate's main in this process, with --save-starts (~2 s)."""
+    starts = str(tmp_path / "starts.npz")
+    code = call_main(evaluate_cli.main, [run_dir, "--episodes", "8", "--seed", "3", "--json",
+                                         "--save-starts", starts])
     out = capsys.readouterr()
     assert code == 0, out.err[-2000:]
     s = json.loads(out.out)
     assert s["episodes"] == 8 and s["seed"] == 3 and len(s["success_ci95"]) == 2
+    assert s["starts"] == starts
+    saved = episode_starts.load(starts, task="reach")
+    assert len(saved) == 8 and saved.success.sum() == s["successes"]
+    assert saved.meta["seed"] == 3 and saved.meta["checkpoint"] == 1
     assert call_main(evaluate_cli.main, [tmp_path]) == 2
     assert "no config.json" in capsys.readouterr().err
+    assert call_main(evaluate_cli.main, [run_dir, "--physics", "c,mjx", "--save-starts",
+                                         starts]) == 2
+    assert "--save-starts takes one --physics engine" in capsys.readouterr().err
+
+
+class _LocalService:
+    """The robot loop's policy client without HTTP: the exported NumPy policy in process."""
+
+    def __init__(self, policy):
+        self.policy = policy
+
+    def act(self, observation, desired_goal):
+        return self.policy.act(observation, desired_goal), {}
+
+
+def test_robot_side_plays_the_evaluations_episodes(policy, run_dir, tmp_path):
+    """The episodes of an evaluation (goals and first states, `mjx_envs.episode_starts`) played
+    again by the robot loop (`run_episodes(starts=...)`: the exported policy, the safety layer
+    without its clearance rule, the NumPy simulator) end where the trainer's env ended them,
+    episode by episode: the same success list and final distances within 0.1 mm (~1 s)."""
+    from daddpg_jax.deploy import robot
+    from daddpg_jax.deploy.safety import SafetyFilter, SafetyLimits
+    from mjx_envs.numpy_env import NumpyDualArmEnv
+
+    n = 4
+    _, traj = evaluation.evaluate(policy, episodes=N_TEST, seed=5)  # compiled above
+    path = episode_starts.save(str(tmp_path / "s"), "reach", traj["goal"][:n],
+                               traj["qpos"][:n, 0], traj["success"][:n])
+    starts = episode_starts.load(path, task="reach", nq=traj["qpos"].shape[-1])
+    exported = NumpyPolicy.load(export_run(run_dir, str(tmp_path / "p.npz")))
+    env = NumpyDualArmEnv(exported.env)
+    safety = SafetyFilter(SafetyLimits.from_env(exported.env, min_clearance=-1e9,
+                                                deadline_s=5.0))
+    logs = []
+    out = robot.run_episodes(env, _LocalService(exported), safety, n, starts=starts,
+                             on_log=logs.append)
+    assert out["episode_success"] == [bool(x) for x in traj["success"][:n]]
+    for k, log in enumerate(logs):
+        np.testing.assert_allclose(log["goal"], traj["goal"][k], atol=1e-6)
+        np.testing.assert_allclose(log["qpos"], traj["qpos"][k, 0], atol=1e-6)
+    assert out["mean_final_distance"] == pytest.approx(
+        float(traj["final_distance"][:n].mean()), abs=1e-4)
+    with pytest.raises(ValueError, match="the starts hold 4"):
+        robot.run_episodes(env, _LocalService(exported), safety, n + 1, starts=starts)
+
+
+@pytest.mark.e2e
+def test_limits_match_pairs_the_robot_client_with_the_evaluation(run_dir, tmp_path):
+    """experiments/limits_match.py end to end on the module's run under sim.toml: export,
+    daddpg-evaluate --limits --save-starts, daddpg-serve and daddpg-robot-client --arms sim
+    --starts over the same 4 episodes; the row is paired (Newcombe interval, counts over the 4
+    episodes) and both sides agree episode by episode (~40 s: three processes load JAX)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    out = tmp_path / "rows"
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "limits_match.py"),
+                        run_dir, "--limits", "daddpg_jax/deploy/limits/sim.toml", "--episodes",
+                        "4", "--port", str(port), "--out", str(out)],
+                       capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    row = json.loads((out / "reach_tiny__sim.json").read_text())
+    assert row["paired"] is True and row["paired_episodes"] == 4
+    assert sum(row["paired_counts"].values()) == 4
+    assert row["paired_counts"]["first_only"] == row["paired_counts"]["second_only"] == 0
+    lo, hi = row["paired_ci95"]
+    assert lo <= row["paired_difference"] == 0.0 <= hi
+    assert row["robot_client_success"] == row["evaluate_limits_success"]
+
+
+def test_starts_file_round_trip_and_refusals(tmp_path):
+    """`mjx_envs.episode_starts`: what is saved loads back; a file of another task, state size
+    or format, with non-finite values or inconsistent shapes is a one-line StartsError; the
+    robot client refuses --starts with real arms (~0.1 s)."""
+    from daddpg_jax.deploy import robot_session
+
+    rng = np.random.default_rng(0)
+    goal, qpos = rng.normal(size=(3, 2, 3)), rng.normal(size=(3, 9))
+    path = episode_starts.save(str(tmp_path / "a.npz"), "push", goal, qpos, [1, 0, 1], seed=7)
+    s = episode_starts.load(path, task="push", nq=9)
+    np.testing.assert_array_equal(s.goal, goal.astype(np.float32))
+    assert s.success.tolist() == [True, False, True] and s.meta["seed"] == 7 and len(s) == 3
+    assert s.task == "push" and not os.path.exists(path + ".tmp.npz")
+    bad = {"reach": dict(task="reach"), "9 coordinates": dict(nq=10)}
+    for msg, kw in bad.items():
+        with pytest.raises(episode_starts.StartsError, match=msg):
+            episode_starts.load(path, **kw)
+    with pytest.raises(episode_starts.StartsError, match="no such file"):
+        episode_starts.load(str(tmp_path / "none.npz"))
+    np.savez(tmp_path / "other.npz", goal=goal)
+    with pytest.raises(episode_starts.StartsError, match="not a starts file"):
+        episode_starts.load(str(tmp_path / "other.npz"))
+    np.savez(tmp_path / "fmt.npz", goal=goal, qpos=qpos, meta=np.array('{"format": "x/9"}'))
+    with pytest.raises(episode_starts.StartsError, match="format 'x/9'"):
+        episode_starts.load(str(tmp_path / "fmt.npz"))
+    qpos[1, 2] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        episode_starts.save(str(tmp_path / "b"), "push", goal, qpos)
+    with pytest.raises(ValueError, match=r"\[N, nq\]"):
+        episode_starts.save(str(tmp_path / "b"), "push", goal, qpos[:2])
+    assert "--arms sim or ur-sim" in robot_session.check_options(2, "ur", starts=path)
+    assert robot_session.check_options(2, "sim", starts=path) is None
 
 
 @pytest.mark.e2e

@@ -30,6 +30,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")   # before MuJoCo is first imported (b
 from daddpg_jax.algo import resolve  # noqa: E402
 from daddpg_jax.analysis import engines, evaluation, perturbation  # noqa: E402
 from daddpg_jax.running import run_dirs  # noqa: E402
+from mjx_envs import episode_starts  # noqa: E402
 from mjx_envs.schema import ConfigError  # noqa: E402
 from mjx_envs.settings import PHYSICS  # noqa: E402
 
@@ -87,6 +88,10 @@ def build_parser():
     add("--out", metavar="DIR", default=None,
         help="with --perturb: directory for perturbation.csv and .json (one row per grid "
              "point) and perturbation.png (success against each perturbation)")
+    add("--save-starts", metavar="FILE.npz", default=None,
+        help="one engine: write the episodes' goals and initial states, with the success of "
+             "each, for daddpg-robot-client --starts FILE (the same episodes on the robot "
+             "side, paired with these)")
     add("--json", nargs="?", const="-", default=None, metavar="PATH",
         help="write the results as JSON to PATH (or to stdout without PATH, instead of the "
              "text summary)")
@@ -100,6 +105,8 @@ def _print_result(summary: dict, args, text: str) -> None:
     print(text)
     if args.video:
         print(f"video: {summary['video']} ({min(args.video_episodes, args.episodes)} episodes)")
+    if summary.get("starts"):
+        print(f"starts: {summary['starts']} (daddpg-robot-client --starts)")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(summary, f, indent=2)
@@ -126,6 +133,10 @@ def _run(policies: dict, args, opts: dict) -> int:
         print("wrote " + ", ".join(paths.values()))
         return 0
     summary, traj = evaluation.evaluate(policy, args.episodes, args.seed, **opts)
+    if args.save_starts:
+        summary["starts"] = episode_starts.save(
+            args.save_starts, summary["task"], traj["goal"], traj["qpos"][:, 0],
+            traj["success"], **{k: summary[k] for k in STARTS_META})
     if args.video:
         try:
             note = evaluation.add_video(summary, policy, traj, args.video, args.video_episodes,
@@ -137,6 +148,11 @@ def _run(policies: dict, args, opts: dict) -> int:
             print(note, file=sys.stderr)
     _print_result(summary, args, evaluation.format_summary(summary))
     return 0
+
+
+STARTS_META = ("seed", "episodes", "run_dir", "checkpoint", "best", "physics",
+               "physics_version")
+"""the evaluation's fields that --save-starts records in the file"""
 
 
 def _limits(args) -> tuple | None:
@@ -156,6 +172,8 @@ def main(argv=None) -> int:
                                       args.perturb, args.out, args.video, args.physics_version,
                                       args.divergence)
         limits = _limits(args)
+        if args.save_starts and (len(names) > 1 or args.perturb):
+            raise ConfigError("--save-starts takes one --physics engine and no --perturb")
         policies = {name: evaluation.load_policy(args.run_dir, args.step, physics=name,
                                                  best=args.best,
                                                  physics_version=args.physics_version,

@@ -57,6 +57,9 @@ def _parser() -> argparse.ArgumentParser:
              "those of the standard task (mjx_envs.settings.TRAINING_ONLY_FIELDS off)")
     add("--episodes", type=int, default=100, help="episodes to run")
     add("--seed", type=int, default=0, help="seed of the NumPy goal sampler")
+    add("--starts", default=None, metavar="FILE.npz",
+        help="--arms sim/ur-sim: play the episodes of this file (goals and initial states, "
+             "from daddpg-evaluate --save-starts) in order, paired with that evaluation")
     add("--limits", default=None, metavar="FILE",
         help="the robot's limits, TOML or JSON: workspace box per arm, speed cap, arm "
              "clearance, control period, deadline, finger range, observation age, calibration "
@@ -149,7 +152,7 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     bad = session.check_options(args.episodes, args.arms, fast=args.fast, perturb=args.perturb,
                                 ur_hosts=args.ur_hosts, sim_base_error=args.sim_base_error,
-                                policy_sha256=args.policy_sha256)
+                                policy_sha256=args.policy_sha256, starts=args.starts)
     bad = bad or session.check_numbers(args) or perception.check_options(
         args.goals, args.objects, args.camera, args.arms, track=args.track)
     if bad:
@@ -165,12 +168,12 @@ def main(argv=None) -> int:
                               setup.safety, args.episodes, monitor, seed=args.seed,
                               fast=args.fast, perturbation=setup.perturbation, log_dir=args.log,
                               dry_run=args.dry_run, report=_stderr_line,
-                              interrupted=signals.requested)
+                              interrupted=signals.requested, starts=setup.starts)
         except (ArmsStopped, ArmsError) as e:
             return _fail(f"{e}; the run is stopped", 4)
     out.update(server=args.server, task=setup.task, arms=args.arms, dry_run=args.dry_run,
                algo=setup.info.get("algo"), policy_sha256=setup.info.get("policy_sha256"),
-               seed=args.seed, goals=args.goals, objects=args.objects,
+               seed=args.seed, starts=args.starts, goals=args.goals, objects=args.objects,
                camera=args.camera, **session.limits_fields(setup.robot_limits, setup.safety,
                                                        args.speed_scale, monitor,
                                                        setup.perturbation))

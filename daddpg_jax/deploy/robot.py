@@ -448,7 +448,7 @@ def _fresh(env, res, seen, step, pacer, pipe, carry):
 
 
 def run_episode(env, client, safety, rng: np.random.Generator | None = None, goal=None,
-                deadline_s: float | None = None, grip_slice=(0, 3),
+                qpos=None, deadline_s: float | None = None, grip_slice=(0, 3),
                 monitor: OutageMonitor | None = None, episode: int = 0,
                 perturbation=None, perturb_rng: np.random.Generator | None = None,
                 action_history: int | None = None, pacer: Pacer | None = None,
@@ -457,7 +457,8 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); client:
+    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); goal
+    [2, 3] and qpos [nq]: the episode's start (None: drawn from ``rng``); client:
     ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
     ``deadline_s``, default the limits' deadline), or one to an observation older than
     ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
@@ -489,7 +490,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     pipe = pipeline.Pipeline(pipeline.stages(np, SAMPLER, perturbation, action_history))
     clock = time.perf_counter if monitor is None else monitor.clock
     deadline = safety.limits.deadline_s if deadline_s is None else float(deadline_s)
-    res = env.reset(rng=rng, goal=goal)
+    res = env.reset(rng=rng, goal=goal, **({} if qpos is None else {"qpos": qpos}))
     log = {} if log is None else log
     log.update(episode=episode, goal=np.asarray(res.desired_goal, float).tolist(),
                qpos=np.asarray(getattr(env, "_qpos", []), float).tolist(), steps=[])
@@ -591,6 +592,7 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
     arm gap and the round-trip times cover every episode run. An episode held for perception
     (``perception`` > 0: the camera's frame too old, a tag not seen, the object lost) is
     counted, as a failure (``perception_held_episodes``; ``perception``: the periods held).
+    ``episode_success`` lists every episode run in order: its success, None when excluded.
     """
     counted = [e for e in eps if e["stops"] == 0]
 
@@ -600,6 +602,8 @@ def summarize_episodes(eps: list[dict], safety_counts: Mapping | None = None,
 
     n_ok = sum(e["success"] and not e.get("perception", 0) for e in counted)
     return dict(episodes=len(counted), episodes_run=len(eps),
+                episode_success=[bool(e["success"] and not e.get("perception", 0))
+                                 if e["stops"] == 0 else None for e in eps],
                 excluded_episodes=len(eps) - len(counted),
                 success_rate=(n_ok / len(counted) if counted else None),
                 success_ci95=list(wilson_interval(n_ok, len(counted))) if counted else None,
@@ -662,8 +666,10 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
                  perturbation=None, pacer: Pacer | None = None,
                  max_observation_age: float | None = None, on_log=None,
                  max_reading_gap: float | None = None, interrupted=None,
-                 ends_run: tuple = ()) -> dict:
-    """``episodes`` episodes with goals from ``np.random.default_rng(seed)``; the summary of
+                 ends_run: tuple = (), starts=None) -> dict:
+    """``episodes`` episodes with goals from ``np.random.default_rng(seed)``, or the first
+    ``episodes`` of ``starts`` (`mjx_envs.episode_starts.EpisodeStarts`: goals and initial
+    states, e.g. those of ``daddpg-evaluate --save-starts``); the summary of
     ``summarize_episodes`` (success rate over the episodes without a missed deadline, ...).
     perturbation: see ``run_episode``; its draws come from ``np.random.default_rng([seed,
     PERTURB_STREAM])``, so the goals are those of the unperturbed run.
@@ -678,6 +684,8 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
     ``aborted`` holding ``reason``, ``episode`` and ``kind`` (``readings``, ``signal`` with
     ``signal``, or the exception's class name).
     """
+    if starts is not None and int(episodes) > len(starts):
+        raise ValueError(f"{episodes} episodes asked, the starts hold {len(starts)}")
     rng = np.random.default_rng(seed)
     perturb_rng = np.random.default_rng([seed, PERTURB_STREAM])
     monitor = OutageMonitor() if monitor is None else monitor
@@ -685,7 +693,8 @@ def run_episodes(env, client, safety, episodes: int, seed: int = 0,
     for k in range(int(episodes)):
         log = {} if on_log is not None else None
         try:
-            eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s,
+            start = {} if starts is None else dict(goal=starts.goal[k], qpos=starts.qpos[k])
+            eps.append(run_episode(env, client, safety, rng=rng, deadline_s=deadline_s, **start,
                                    monitor=monitor, episode=k, perturbation=perturbation,
                                    perturb_rng=perturb_rng, pacer=pacer,
                                    max_observation_age=max_observation_age, log=log,

@@ -25,8 +25,8 @@ from daddpg_jax.deploy.limits import LimitsError, RobotLimits
 from daddpg_jax.deploy.recording import RecorderError, recorded
 from daddpg_jax.deploy.robot import Pacer, run_episodes
 from daddpg_jax.deploy.safety import SafetyFilter
+from mjx_envs import episode_starts, perturb, registry, schema
 from mjx_envs import observation as obs_lib
-from mjx_envs import perturb, registry, schema
 
 COMPARED = ("scene", "episode_length", "timestep", "n_substeps", "max_delta", "lock_fingers",
             "locked_opening", "finger_stroke", "action_history")
@@ -69,11 +69,14 @@ def check_numbers(opt) -> str | None:
 
 def check_options(episodes: int, arms: str, fast: bool = False, perturb=(),
                   ur_hosts: str | None = None, sim_base_error: str | None = None,
-                  policy_sha256: str | None = None) -> str | None:
+                  policy_sha256: str | None = None, starts: str | None = None) -> str | None:
     """One-line error text when daddpg-robot-client's options do not fit together, else
     None."""
     if episodes < 1:
         return f"--episodes must be >= 1, got {episodes}"
+    if arms == "ur" and starts:
+        return ("--starts places simulated episodes' objects: --arms sim or ur-sim only (real "
+                "arms see the real scene)")
     if arms == "ur" and (fast or perturb):
         return "--fast and --perturb are for simulated arms only (--arms sim or ur-sim)"
     if arms != "ur" and ur_hosts:
@@ -209,7 +212,7 @@ class SetupError(Exception):
 class Setup:
     """Everything a run needs besides the options: the limits (RobotLimits and the
     SafetyLimits in force), the token, the service's info, its task, the perturbation (None:
-    none) and the arms' env."""
+    none), the arms' env and the episodes' starts (--starts; None: drawn from --seed)."""
     robot_limits: RobotLimits
     safety: object
     token: str | None
@@ -217,6 +220,7 @@ class Setup:
     task: str
     perturbation: object
     env: object
+    starts: episode_starts.EpisodeStarts | None = None
 
 
 def prepare(opt, report=print) -> Setup:
@@ -260,11 +264,25 @@ def prepare(opt, report=print) -> Setup:
     except perception.PerceptionError as e:
         raise SetupError(str(e)) from None
     try:
+        starts = _starts(opt, task, env)
         env = recorded(env, getattr(opt, "rerun", None), safety, sight)
-    except RecorderError as e:
+    except (RecorderError, episode_starts.StartsError) as e:
         env.close()
         raise SetupError(str(e)) from None
-    return Setup(limits, safety, token, info, task, perturbed, env)
+    return Setup(limits, safety, token, info, task, perturbed, env, starts)
+
+
+def _starts(opt, task: str, env) -> episode_starts.EpisodeStarts | None:
+    """The episodes' starts of --starts (None without it), checked against the task, its
+    model's state size and --episodes. Raises StartsError."""
+    path = getattr(opt, "starts", None)
+    if not path:
+        return None
+    starts = episode_starts.load(path, task=task, nq=env.spec.model.nq)
+    if opt.episodes > len(starts):
+        raise episode_starts.StartsError(f"--starts {path}: {len(starts)} episodes, --episodes "
+                                         f"asks {opt.episodes}")
+    return starts
 
 
 def episode_logger(log_dir: str):
@@ -316,7 +334,7 @@ class Signals:
 
 def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor,
         seed: int = 0, fast: bool = False, perturbation=None, log_dir: str | None = None,
-        dry_run: bool = False, report=print, interrupted=None) -> dict:
+        dry_run: bool = False, report=print, interrupted=None, starts=None) -> dict:
     """Runs `episodes` episodes of `env` against the service at `url` through the safety
     filter (robot.run_episodes, outages watched by `monitor`; paced at the control period
     unless `fast`; one JSON log per episode in `log_dir`) and closes the client and the env.
@@ -324,7 +342,8 @@ def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor
     dry_run_commands (`dry_run`; written to log_dir/dry_run_commands.json) and wall_s;
     `report(line)` gets the refusal line and the gate's. The arms' errors (`ENDS_RUN`), lost
     readings and `interrupted` (`Signals.requested`) end the run with ``aborted`` set; the
-    arms are stopped (servoStop) and released in every case."""
+    arms are stopped (servoStop) and released in every case. `starts`: the episodes' goals
+    and initial states (`mjx_envs.episode_starts.EpisodeStarts`; None: drawn from `seed`)."""
     client = server.PolicyClient(url, timeout=safety.deadline_s, token=token)
     pacer = None if fast else Pacer(limits.control_period, clock=monitor.clock)
     on_log = episode_logger(log_dir) if log_dir else None
@@ -337,7 +356,7 @@ def run(env, url: str, token: str | None, limits, safety, episodes: int, monitor
                            monitor=monitor, perturbation=perturbation, pacer=pacer,
                            max_observation_age=limits.max_observation_age, on_log=on_log,
                            max_reading_gap=limits.max_reading_gap, interrupted=interrupted,
-                           ends_run=ENDS_RUN)
+                           ends_run=ENDS_RUN, starts=starts)
     finally:
         client.close()
         if hasattr(env, "close"):
