@@ -225,7 +225,8 @@ def test_limits_match_pairs_the_robot_client_with_the_evaluation(run_dir, tmp_pa
     """experiments/limits_match.py end to end on the module's run under sim.toml: export,
     daddpg-evaluate --limits --save-starts, daddpg-serve and daddpg-robot-client --arms sim
     --starts over the same 4 episodes; the row is paired (Newcombe interval, counts over the 4
-    episodes) and both sides agree episode by episode (~40 s: three processes load JAX)."""
+    episodes), both sides agree episode by episode, and limits_table.py prints the row (~40 s:
+    three processes load JAX)."""
     import socket
 
     with socket.socket() as sock:
@@ -244,6 +245,11 @@ def test_limits_match_pairs_the_robot_client_with_the_evaluation(run_dir, tmp_pa
     lo, hi = row["paired_ci95"]
     assert lo <= row["paired_difference"] == 0.0 <= hi
     assert row["robot_client_success"] == row["evaluate_limits_success"]
+    table = subprocess.run([sys.executable, os.path.join(ROOT, "experiments", "limits_table.py"),
+                            str(out / "reach_tiny__sim.json")], capture_output=True, text=True,
+                           timeout=60, check=True).stdout.splitlines()
+    assert len(table) == 3 and table[2].startswith("| reach_tiny | no limits |")
+    assert "+0.000 [" in table[2] and "| 0 / 0 |" in table[2]
 
 
 def test_starts_file_round_trip_and_refusals(tmp_path):
