@@ -457,12 +457,12 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     """One episode: every control period, query the policy service with the observation built
     by ``mjx_envs.observation``, pass the answer through the safety layer, move the targets.
 
-    env: ``mjx_envs.numpy_env.NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); goal
-    [2, 3] and qpos [nq]: the episode's start (None: drawn from ``rng``); client:
-    ``PolicyClient``; safety: ``SafetyFilter``. A missing, malformed or late answer (later than
-    ``deadline_s``, default the limits' deadline), or one to an observation older than
-    ``max_observation_age`` s (``stale``; capture time: the result's ``captured_at`` if the env
-    sets one, else when the loop read it) is a missed deadline: both arms hold (``stops``).
+    env: ``NumpyDualArmEnv`` or ``deploy.arms.ArmsEnv`` (`_fresh`); goal [2, 3], qpos [nq]: the
+    start (None: from ``rng``); client: ``PolicyClient``; safety: ``SafetyFilter``. A missing,
+    malformed or late answer (later than ``deadline_s``, default the limits' deadline), or one
+    to an observation older than ``max_observation_age`` s (``stale``; capture time: the
+    result's ``captured_at`` if the env sets one, else when the loop read it) is a missed
+    deadline: both arms hold (``stops``).
     monitor: an ``OutageMonitor`` told of each period after the hold; its ``ServiceOutage``
     ends the episode, with the partial summary in ``.episode``. episode: the index, for reports.
     pacer: a ``Pacer`` runs one step per control period (None: as fast as the env steps).
@@ -482,8 +482,7 @@ def run_episode(env, client, safety, rng: np.random.Generator | None = None, goa
     policy sees and sends; the safety layer sees the true state. action_history: the policy's k
     (``mjx_envs.observation.with_action_history``; None = ``env.config``'s, 0 without one): the
     actions the service answered, before any latency; a held period counts as zero.
-    The observation pipeline is the trainer's (`mjx_envs.pipeline`, over NumPy).
-    Returns the summary.
+    Observations: the trainer's pipeline (`mjx_envs.pipeline`, over NumPy). Returns the summary.
     """
     if action_history is None:
         action_history = getattr(getattr(env, "config", None), "action_history", 0)
