@@ -7,8 +7,10 @@ the fraction of states where it fell > 20 mm and the mean absolute difference of
 
 Environment: LOADS (comma list, default 0,3,8), UNIQ=1 (MJX with the unique-points prototype,
 unique_points.py), JAX_ENABLE_X64=1 (float64 MJX). Candidates: model edits of the grasp pairs
-and solver options, or finger pads (pads.py). Outputs: docs/results/engines/grasp_hold/hold_*.json
-and docs/results/engines/unique_points/h_*.json (docs/MJX_VS_C.md).
+and solver options, or finger pads (pads.py; ``meshf_mjxbox`` / ``meshneck_mjxbox``: box-shaped
+meshes that MJX collides as boxes, box_meshes.py). Outputs:
+docs/results/engines/grasp_hold/hold_*.json, docs/results/engines/unique_points/h_*.json and
+docs/results/engines/manifold_search/hold_*.json (docs/MJX_VS_C.md).
 """
 
 from __future__ import annotations
@@ -52,7 +54,9 @@ CANDIDATES = {
     "pyr_fric3": pt.chain(pt.options(cone=0), pt.pair_fields(friction=(3.0, 3.0))),
 }
 PAD_CANDIDATES = {"pads": "spheres", "dense": "dense", "caps": "caps", "caps3": "caps3",
-                  "meshf": "meshf", "meshf_noccd": "meshf_noccd"}
+                  "meshf": "meshf", "meshf_noccd": "meshf_noccd", "meshneck": "meshneck",
+                  "meshneck_noccd": "meshneck_noccd", "meshf_mjxbox": "meshf_mjxbox",
+                  "meshneck_mjxbox": "meshneck_mjxbox"}
 
 
 def model_for(task: str, name: str, ref: mujoco.MjModel) -> mujoco.MjModel:
@@ -107,6 +111,8 @@ def main(argv=None) -> int:
                           else np.float32)
     out = json.load(open(out_path)) if os.path.exists(out_path) else {}
     backends.import_mjx()
+    from experiments.engine_parity import box_meshes
+    box_meshes.install()   # acts only on models with its numeric (pads *_mjxbox)
     if os.environ.get("UNIQ"):
         from experiments.engine_parity import unique_points
         unique_points.install()

@@ -2,7 +2,10 @@
 (object pulled down by LOAD x its weight; hold.py) sampled every 4 control steps over 16; the
 object's linear acceleration and the grasp contact points per engine at each sample step.
 
-    python experiments/engine_parity/loaded_forward.py TASK LOAD OUT.json [cone=N] [iters=N]
+    python experiments/engine_parity/loaded_forward.py TASK LOAD OUT.json [cone=N] [iters=N] \
+        [pads=KIND]
+
+pads=KIND: the grasp pairs of pads.py's kind KIND (e.g. meshf, meshneck; both engines).
 
 Recorded at git 71b10df (physics version 3 as shipped):
 docs/results/engines/unique_points/lf_pickup6.json, lf_pickup6_it100.json (iters=100).
@@ -31,7 +34,8 @@ N, EVERY, STEPS = 32, 4, 16   # states; sample every EVERY of STEPS control step
 
 
 def c_trajectory(m, st, f, n_sub, dofs, pg):
-    """The sampled states, the object's acceleration and the grasp contact count there (C)."""
+    """The sampled states, the object's acceleration and the grasp contact points per grasp pair
+    (`pg`, sorted) there (C)."""
     samples = {k: [] for k in pt.STATE_KEYS}
     acc, count = [], []
     d = mujoco.MjData(m)
@@ -46,8 +50,10 @@ def c_trajectory(m, st, f, n_sub, dofs, pg):
                 for k, v in zip(pt.STATE_KEYS, (d.qpos, d.qvel, d.mocap_pos[:2], d.ctrl)):
                     samples[k].append(v.copy())
                 acc.append(dd.qacc[dofs].copy())
-                g = zip(dd.contact.geom1[:dd.ncon], dd.contact.geom2[:dd.ncon])
-                count.append(sum((int(a), int(b)) in pg for a, b in g))
+                g = [(int(a), int(b)) for a, b in zip(dd.contact.geom1[:dd.ncon],
+                                                      dd.contact.geom2[:dd.ncon])]
+                # an engine may swap a pair's geoms by their types
+                count.append([sum(c in (p, p[::-1]) for c in g) for p in sorted(pg)])
             mujoco.mj_step(m, d)
     return ({k: np.asarray(v, np.float32) for k, v in samples.items()}, np.asarray(acc),
             np.asarray(count))
@@ -64,8 +70,9 @@ def mjx_forward(m, samples, f, dofs, pg):
         def one(q, v, mc, c):
             dd = mjx.forward(mm, pt.mjx_state(d0, q, v, mc, c, fj))
             con = dd._impl.contact
-            isg = (con.geom[:, None, :] == pga[None]).all(-1).any(-1)
-            return dd.qacc[dofs], jnp.sum(isg & (con.dist < con.includemargin))
+            isg = ((con.geom[:, None, :] == pga[None]).all(-1)
+                   | (con.geom[:, None, ::-1] == pga[None]).all(-1))   # [contacts, pairs]
+            return dd.qacc[dofs], jnp.sum(isg & (con.dist < con.includemargin)[:, None], 0)
         return jax.vmap(one)(q, v, mc, c)
 
     acc, count = [], []
@@ -85,7 +92,11 @@ def main(argv=None) -> int:
     env = mjx_envs.make(task, physics="c")
     m, n_sub = env.mj_model, env.config.n_substeps
     for k, v in (a.split("=") for a in argv[3:]):
-        if k == "cone":
+        if k == "pads":
+            from experiments.engine_parity import box_meshes, pads
+            m = pads.like(v, f"scene_{task}.xml", m)
+            box_meshes.install()   # acts only on models with its numeric (*_mjxbox)
+        elif k == "cone":
             m.opt.cone = int(v)
         elif k == "iters":
             m.opt.iterations = m.opt.ls_iterations = int(v)
@@ -99,13 +110,21 @@ def main(argv=None) -> int:
     acc_m, cnt_m = mjx_forward(m, samples, f, dofs, pg)
     t = np.arange(len(acc_c)) % (STEPS // EVERY)   # the sample's index within its episode
     out = {}
+    pairs = (cnt_c, cnt_m)
+    cnt_c, cnt_m = cnt_c.sum(-1), cnt_m.sum(-1)
     for s in range(STEPS // EVERY):
         sel = t == s
+        pc, pm = pairs[0][sel].ravel(), pairs[1][sel].ravel()
+        touch = (pc > 0) | (pm > 0)
         out[str(EVERY * s)] = dict(
             az_c=float(acc_c[sel, 2].mean()), az_mjx=float(acc_m[sel, 2].mean()),
             dlin=float(np.linalg.norm(acc_c[sel, :3] - acc_m[sel, :3], axis=-1).mean()),
             grasp_points_c=float(cnt_c[sel].mean()), grasp_points_mjx=float(cnt_m[sel].mean()),
-            states_c_fewer=float((cnt_c[sel] < cnt_m[sel]).mean()))
+            states_c_fewer=float((cnt_c[sel] < cnt_m[sel]).mean()),
+            states_c_more=float((cnt_c[sel] > cnt_m[sel]).mean()),
+            pairs_same_points=float((pc == pm)[touch].mean()),   # of the pairs touching
+            pairs_c_m={f"{a},{b}": int(((pc == a) & (pm == b) & touch).sum())
+                       for a, b in sorted(set(zip(pc[touch].tolist(), pm[touch].tolist())))})
         print(task, load, argv[3:], "step", EVERY * s, out[str(EVERY * s)], flush=True)
     with open(out_path, "w") as fh:
         json.dump(out, fh, indent=1)

@@ -7,8 +7,12 @@ Pad kinds (`PADS`): ``spheres`` (2 x 4 spheres of 6 mm), ``dense`` (4 x 9 touchi
 4 mm), ``caps`` / ``caps3`` (2 or 3 capsules along the finger), ``recessed`` (the dense grid set
 ``OUT_M`` beyond the finger box's face, the finger box kept in its pair as a blocker at friction
 0.05), ``meshf`` / ``meshf_noccd`` (the finger boxes as convex meshes, with or without
-multiccd). `model(kind, scene)` builds one model; `patch(kind)` makes every model the package
-loads (trainer, evaluation, the parity measurement) carry the pads.
+multiccd), ``meshneck`` / ``meshneck_noccd`` (the grasped object geoms, the bar's necks or the
+pot's handles, as box-shaped convex meshes in the grasp pairs; the fingers stay boxes), and
+``meshf_mjxbox`` / ``meshneck_mjxbox`` (the same, with box_meshes.py's numeric: MJX collides
+the meshes as boxes, the C engine as meshes with multi-contact).
+`model(kind, scene)` builds one model; `patch(kind)` makes every model the package loads
+(trainer, evaluation, the parity measurement) carry the pads.
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ CAPSULES = {
     "caps": dict(r=0.006, xs=(-0.011, 0.011), zc=0.035, half=0.032),
     "caps3": dict(r=0.006, xs=(-0.011, 0.0, 0.011), zc=0.035, half=0.032),
 }
-PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd")
+PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "meshneck_noccd",
+        "meshf_mjxbox", "meshneck_mjxbox")
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -109,6 +114,28 @@ def mesh_fingers(spec):
                 setattr(p, attr, name)
 
 
+def mesh_objects(spec):
+    """The grasp pairs' object geoms (the other geom of a finger's pair with friction > 1: the
+    bar's necks, the pot's handles) moved to box-shaped convex meshes of the same size and pose
+    (C: general convex collision, multi-contact unless multiccd is disabled; MJX: convex-convex
+    manifold). The boxes stay for the object's inertia and its other pairs."""
+    fingers = _fingers(spec)
+    geoms = {g.name: (b, g) for b in spec.bodies for g in b.geoms}
+    for p, _, other in list(_grasp_pairs(spec, fingers)):
+        body, g = geoms[other]
+        name = other + "_mesh"
+        if spec.geom(name) is None:
+            verts = np.array(list(itertools.product(*[(-h, h) for h in g.size[:3]])))
+            spec.add_mesh(name=name + "_shape", uservert=verts.ravel().tolist())
+            body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name + "_shape",
+                          pos=list(g.pos), quat=list(g.quat), contype=0, conaffinity=0,
+                          group=3, density=0.0)
+        if p.geomname1 == other:
+            p.geomname1 = name
+        else:
+            p.geomname2 = name
+
+
 def recessed_options() -> dict:
     """The recessed pads from the environment: OUT_M (m beyond the face, default 0.001) and
     GRID=dense|spheres (default dense)."""
@@ -127,6 +154,17 @@ def edit_for(kind: str):
         return lambda spec: sphere_pads(spec, **opts)
     if kind in ("meshf", "meshf_noccd"):
         return mesh_fingers
+    if kind in ("meshneck", "meshneck_noccd"):
+        return mesh_objects
+    if kind in ("meshf_mjxbox", "meshneck_mjxbox"):
+        from experiments.engine_parity import box_meshes
+
+        edit = mesh_fingers if kind == "meshf_mjxbox" else mesh_objects
+
+        def mjxbox(spec):
+            edit(spec)
+            spec.add_numeric(name=box_meshes.NUMERIC, data=[1.0])
+        return mjxbox
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
 
@@ -140,7 +178,7 @@ def model(kind: str, scene: str, timestep=None, cone=None) -> mujoco.MjModel:
         m.opt.timestep = float(timestep)
     if cone is not None:
         m.opt.cone = model_lib.CONES[cone]
-    if kind == "meshf_noccd":   # mujoco 4: multiccd is on unless disabled
+    if kind.endswith("_noccd"):   # mujoco 4: multiccd is on unless disabled
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
     return m
 
@@ -173,6 +211,9 @@ def patch(kind: str, scenes=GRASP_SCENES):
     from mjx_envs.tasks import grasp_start, scripted
 
     edit_for(kind)   # unknown kinds fail here
+    if kind.endswith("_mjxbox"):
+        from experiments.engine_parity import box_meshes
+        box_meshes.install()
     orig = model_lib.load_model
 
     def load(scene, timestep=None, cone=None, physics_version=None):
