@@ -10,6 +10,10 @@ import argparse
 import json
 import sys
 
+RULES = ("workspace", "speed", "clearance", "finger")
+"""the safety layer's rules, whose interventions the per-episode column counts (a missed
+deadline's hold, ``stop`` / ``late``, is listed but not counted)"""
+
 HEADER = ("| run | trained under | train test success (best) | limits | `daddpg-evaluate "
           "--limits` | robot client (counted) | robot − evaluate [paired 95 %] | solved by one "
           "side only (evaluate / robot) | robot-client interventions per episode |\n"
@@ -26,9 +30,9 @@ def trained_under(row: dict) -> str:
 
 def line(row: dict) -> str:
     n = row["robot_client_episodes_counted"]
-    per = sum((row.get("robot_client_interventions") or {}).values()) / max(1, n)
-    rules = ", ".join(f"{k} {v:,}" for k, v in sorted(
-        (row.get("robot_client_interventions") or {}).items())) or "none"
+    counts = row.get("robot_client_interventions") or {}
+    per = sum(v for k, v in counts.items() if k in RULES) / max(1, n)
+    rules = ", ".join(f"{k} {v:,}" for k, v in sorted(counts.items())) or "none"
     limits = row["limits"] + ("" if row.get("speed_scale", 1) == 1 else
                               f" x {row['speed_scale']:g}")
     if row.get("paired"):
