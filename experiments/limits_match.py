@@ -28,6 +28,7 @@ import time
 import urllib.request
 
 from daddpg_jax.analysis.engines import newcombe_paired_interval, paired_counts
+from mjx_envs import episode_starts
 
 PY = sys.executable
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -82,10 +83,7 @@ def _paired(starts: str, rc: dict) -> dict:
     """The paired comparison over the episodes both sides counted (the robot client excludes
     an episode with a missed deadline): robot client minus evaluation, its 95 % interval,
     and the episodes each side alone solved."""
-    import numpy as np
-
-    with np.load(starts, allow_pickle=False) as f:
-        ev = f["success"]
+    ev = episode_starts.load(starts).success
     rc_ok = rc["episode_success"]
     keep = [i for i, x in enumerate(rc_ok) if x is not None]
     counts = paired_counts([bool(rc_ok[i]) for i in keep], ev[keep])

@@ -10,6 +10,8 @@ import argparse
 import json
 import sys
 
+from mjx_envs import limit_rules
+
 RULES = ("workspace", "speed", "clearance", "finger")
 """the safety layer's rules, whose interventions the per-episode column counts (a missed
 deadline's hold, ``stop`` / ``late``, is listed but not counted)"""
@@ -22,10 +24,10 @@ HEADER = ("| run | trained under | train test success (best) | limits | `daddpg-
 
 def trained_under(row: dict) -> str:
     """The limits a run was trained under, by their max step and clearance (none: plain)."""
-    lim = row.get("trained_limits")
-    if not lim:
+    if not row.get("trained_limits"):
         return "no limits"
-    return f"max step {lim[12] * 1e3:.1f} mm, clearance {lim[13] * 1e2:.0f} cm"
+    lim = limit_rules.describe(row["trained_limits"])
+    return f"max step {lim['max_step'] * 1e3:.1f} mm, clearance {lim['min_clearance'] * 1e2:.0f} cm"
 
 
 def line(row: dict) -> str:
