@@ -111,7 +111,9 @@ def main(argv=None) -> int:
     os.makedirs(args.out, exist_ok=True)
     for run_dir in args.runs:
         with open(os.path.join(run_dir, "config.json")) as f:
-            trained = (json.load(f).get("env_overrides") or {}).get("robot_limits")
+            env_over = json.load(f).get("env_overrides") or {}
+        trained = env_over.get("robot_limits")
+        penalty = float(env_over.get("intervention_penalty", 0.0))
         with tempfile.TemporaryDirectory() as tmp:
             policy = os.path.join(tmp, "policy.npz")
             _run([PY, os.path.join(HERE, "export.py"), run_dir, "--best", "--out", policy])
@@ -122,7 +124,8 @@ def main(argv=None) -> int:
                 rc = _robot_client(policy, limits, args.episodes, args.seed, args.speed_scale,
                                    args.port, tmp, starts)
                 row = dict(run=os.path.basename(os.path.normpath(run_dir)),
-                           trained_limits=trained, limits=os.path.basename(limits),
+                           trained_limits=trained, intervention_penalty=penalty,
+                           limits=os.path.basename(limits),
                            speed_scale=args.speed_scale, episodes=args.episodes,
                            seed=args.seed, train_best_test_success=_best_test_success(run_dir),
                            evaluate_limits_success=ev["success_rate"],

@@ -23,11 +23,14 @@ HEADER = ("| run | trained under | train test success (best) | limits | `daddpg-
 
 
 def trained_under(row: dict) -> str:
-    """The limits a run was trained under, by their max step and clearance (none: plain)."""
+    """The limits a run was trained under, by their max step and clearance (none: plain), and
+    its intervention penalty when it had one."""
     if not row.get("trained_limits"):
         return "no limits"
     lim = limit_rules.describe(row["trained_limits"])
-    return f"max step {lim['max_step'] * 1e3:.1f} mm, clearance {lim['min_clearance'] * 1e2:.0f} cm"
+    pen = row.get("intervention_penalty") or 0.0
+    text = f"max step {lim['max_step'] * 1e3:.1f} mm, clearance {lim['min_clearance'] * 1e2:.0f} cm"
+    return text + (f", intervention penalty {pen:g}" if pen else "")
 
 
 def line(row: dict) -> str:

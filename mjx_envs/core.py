@@ -65,7 +65,9 @@ class DualArmEnv:
     action_size = 8
     goal_size = 3
     obs_size = obs_lib.OBS_SIZE
-    info_keys: tuple[str, ...] = rules.INFO_KEYS
+    info_keys: tuple[str, ...] = ("arm_contact_penalty",)
+    """the goal-independent reward terms this env sets in ``info`` (`mjx_envs.rules.INFO_KEYS`;
+    ``intervention_penalty`` too when its setting is on)"""
 
     @classmethod
     def default_config(cls) -> TaskConfig:
@@ -89,7 +91,11 @@ class DualArmEnv:
         self._ws_high = np.asarray(cfg.workspace_high, np.float32)
         self.rules = registry.make_rules(self.task_name, cfg, self.mj_model)
         self.limits = limit_rules.from_config(jnp, cfg)  # the robot's rules (None: off)
-        self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty), 0.0)
+        self.intervention_penalty = float(cfg.intervention_penalty)
+        if self.intervention_penalty > 0:  # (the config refuses it without robot_limits)
+            self.info_keys = (*type(self).info_keys, "intervention_penalty")
+        self.reward_range = (-(cfg.goal_scale + cfg.team_scale + cfg.arm_contact_penalty
+                               + self.intervention_penalty), 0.0)
         # the nominal model's engine (`mjx_envs.wrappers.Randomize` replaces it by one that
         # takes per-env model parameters)
         self.backend = make_backend(self.physics, self.mj_model, cfg.n_substeps)
@@ -139,6 +145,8 @@ class DualArmEnv:
         ag = self.rules.achieved_goal(arm, obj).astype(jnp.float32)
         clearance = obs_lib.arm_clearance(jnp, arm["link_points"])
         arm_contact, info = self.rules.contact_terms(jnp, clearance)
+        if self.intervention_penalty > 0:  # set by `charge` after a step's rules
+            info["intervention_penalty"] = jnp.zeros((NUM_ARMS,), jnp.float32)
         info["step"] = step
         terms = self.reward_terms(ag, desired_goal)
         reward = self.rules.reward(jnp, ag, desired_goal, info, terms=terms)
@@ -179,17 +187,28 @@ class DualArmEnv:
         return jnp.clip(target + delta, self._ws_low, self._ws_high)
 
     def limit_targets(self, state: State, current, target):
-        """``target`` [2, 3] after the robot's rules (`mjx_envs.limit_rules`: workspace clamp,
-        speed cap and arm clearance from ``current``, with the link points and tool positions
-        measured in ``state``), as the robot client's safety layer moves them; ``target`` itself
-        without limits (``robot_limits = ()``)."""
+        """(``target`` [2, 3] after the robot's rules, whether they changed it): the rules of
+        `mjx_envs.limit_rules` (workspace clamp, speed cap and arm clearance from ``current``,
+        with the link points and tool positions measured in ``state``), as the robot client's
+        safety layer moves them, and a bool that is True where its count of interventions would
+        rise; (``target`` itself, False) without limits (``robot_limits = ()``)."""
         if self.limits is None:
-            return target
+            return target, jnp.zeros((), bool)
         links, tool = limit_rules.measured(jnp, self.sensors, self.backend.sensordata(state.data),
                                            self.dt)
-        t, _, _ = limit_rules.apply(jnp, self.limits, current, target, links, tool,
-                                    jnp.zeros((NUM_ARMS,), jnp.float32))
-        return t
+        t, _, flags = limit_rules.apply(jnp, self.limits, current, target, links, tool,
+                                        jnp.zeros((NUM_ARMS,), jnp.float32))
+        return t, flags["workspace"] | flags["speed"] | flags["clearance"]
+
+    def charge(self, state: State, intervened) -> State:
+        """``state`` (after `advance`) with the intervention penalty of a step whose targets the
+        rules changed (``intervened``: `limit_targets`) in its reward and ``info`` (both arms
+        pay: the arms share the clearance); ``state`` itself when the penalty is off."""
+        if self.intervention_penalty <= 0:
+            return state
+        pen = jnp.full((NUM_ARMS,), -self.intervention_penalty, jnp.float32) * intervened
+        info = {**state.info, "intervention_penalty": pen}
+        return state.replace(reward=state.reward + pen, info=info)
 
     def advance(self, state: State, target, finger_cmd, params=None) -> State:
         """One control step towards the true Cartesian ``target`` [2, 3] with finger commands
@@ -212,8 +231,8 @@ class DualArmEnv:
         a = clip_action(action)
         current = self.backend.mocap_pos(state.data)[:NUM_ARMS]
         target = self.move_targets(current, self.config.max_delta * a[:, :3])
-        target = self.limit_targets(state, current, target)
-        return self.advance(state, target, a[:, 3])
+        target, intervened = self.limit_targets(state, current, target)
+        return self.charge(self.advance(state, target, a[:, 3]), intervened)
 
     def render(self, state: State, width: int = 640, height: int = 480, camera=None):
         """RGB frame [H, W, 3] of an unbatched state (host side, C engine's renderer)."""

@@ -38,8 +38,9 @@ from typing import Any
 import numpy as np
 
 NUM_ARMS = 2
-INFO_KEYS: tuple[str, ...] = ("arm_contact_penalty",)
-"""Goal-independent per-arm reward terms carried in ``info`` (already scaled and signed)."""
+INFO_KEYS: tuple[str, ...] = ("arm_contact_penalty", "intervention_penalty")
+"""Goal-independent per-arm reward terms carried in ``info`` (already scaled and signed; an env
+carries those it sets, `mjx_envs.core.DualArmEnv.info_keys`)."""
 
 
 # -- samplers ---------------------------------------------------------------------------------

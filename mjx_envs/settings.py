@@ -135,11 +135,20 @@ class TaskConfig:
                                "set by daddpg-train --limits FILE): box low [2 x 3], box high "
                                "[2 x 3], max_step m, min_clearance m, finger_low m, "
                                "finger_high m (16 numbers); () = off")
+    intervention_penalty: float = spec(0.0, "with robot_limits: per-arm penalty for each control "
+                                       "step in which the robot's rules change a target "
+                                       "(workspace clamp, speed cap or arm clearance, either "
+                                       "arm: a step the robot client counts as an "
+                                       "intervention; goal-independent; daddpg-train "
+                                       "--intervention-penalty C); 0 = off", low=0.0)
 
     def __post_init__(self):
         finalize(self)
         for lo, hi in (("workspace_low", "workspace_high"), ("goal_low", "goal_high")):
             _check_ordered(self, lo, hi)
+        if self.intervention_penalty > 0 and not self.robot_limits:
+            raise ConfigError("intervention_penalty needs robot_limits (daddpg-train --limits "
+                              "FILE --intervention-penalty C)")
 
     def training_only_off(self) -> dict:
         """The overrides that give the standard task (test episodes): every field of

@@ -119,11 +119,12 @@ class Randomize(Wrapper):
         target = env.backend.mocap_pos(state.data)[:NUM_ARMS]
         if moves_base:  # the arms' targets live in their nominal frames
             target = randomize.to_nominal(jnp, ix, rand["params"], target)
-        target = env.limit_targets(state, target, env.move_targets(
+        target, intervened = env.limit_targets(state, target, env.move_targets(
             target, env.config.max_delta * a[:, :3] * rand["action_scale"]))
         if moves_base:
             target = randomize.to_true(jnp, ix, rand["params"], target)
-        return self._seen(env.advance(state, target, a[:, 3], self._params(rand)), rand)
+        state = env.charge(env.advance(state, target, a[:, 3], self._params(rand)), intervened)
+        return self._seen(state, rand)
 
 
 class ObservationStage(Wrapper):

@@ -113,6 +113,28 @@ def test_resume_keeps_the_recorded_limits():
             resolve.resolve_config(parser.parse_args(["--resume", "runs/x", *flags]), load)
 
 
+def test_intervention_penalty_flag():
+    """--intervention-penalty C records the env field; it needs limits, refuses C < 0 and, on
+    --resume, a value other than the recorded one (~0.2 s)."""
+    parser = build_parser()
+    cfg, env_over = resolve.resolve_config(parser.parse_args(
+        ["--task", "reach", "--limits", SIM, "--intervention-penalty", "0.1"]), None)
+    assert env_over["intervention_penalty"] == 0.1
+    for flags, match in ((["--intervention-penalty", "0.1"], "needs robot_limits"),
+                         (["--limits", SIM, "--intervention-penalty", "-1"], ">= 0")):
+        with pytest.raises(ConfigError, match=match):
+            resolve.resolve_config(parser.parse_args(["--task", "reach", *flags]), None)
+
+    def load(path):
+        return cfg, dict(env_over)
+
+    _, over = resolve.resolve_config(parser.parse_args(["--resume", "runs/x"]), load)
+    assert over["intervention_penalty"] == 0.1
+    with pytest.raises(ConfigError, match="--resume: --intervention-penalty"):
+        resolve.resolve_config(parser.parse_args(
+            ["--resume", "runs/x", "--intervention-penalty", "0.2"]), load)
+
+
 def test_the_robot_side_names_its_tighter_limits():
     """`trained_limits.check`: one line naming each limit where the robot is tighter than the
     policy's training; --require-trained-limits refuses that and a policy trained without
@@ -135,19 +157,38 @@ def test_the_robot_side_names_its_tighter_limits():
 @pytest.mark.slow
 def test_trainer_env_moves_its_targets_as_the_numpy_simulator():
     """The trainer's env (C engine, jitted) under ``robot_limits`` from ur3_cell.toml and the
-    NumPy simulator under the same limits give the same targets over 25 steps of actions
-    driving the arms towards each other (speed cap and clearance both act; ~15 s: one jit)."""
+    NumPy simulator under the robot client's safety layer with the same limits give the same
+    targets over 25 steps of actions driving the arms towards each other (speed cap and
+    clearance both act), and the env's ``intervention_penalty`` charges both arms exactly in
+    the steps the safety layer counts an intervention (~15 s: one jit)."""
     flat = resolve.limits_values(CELL, None, "reach", {})
-    env = mjx_envs.make("reach", physics="c", robot_limits=flat)
-    ref = NumpyDualArmEnv({"robot_limits": flat}, task="reach")
-    ref.reset(np.random.default_rng(0))
+    safety = SafetyFilter(RobotLimits.load(CELL).safety_limits())
+    env = mjx_envs.make("reach", physics="c", robot_limits=flat, intervention_penalty=0.25)
+    assert env.info_keys == ("arm_contact_penalty", "intervention_penalty")
+    assert env.reward_range[0] == pytest.approx(-1.25)
+    ref = NumpyDualArmEnv({}, task="reach")
+    res = ref.reset(np.random.default_rng(0))
     step = jax.jit(env.step)
     state = env.reset(jax.random.PRNGKey(0))
     rng = np.random.default_rng(2)
-    for _ in range(25):
+    charged = 0
+    for i in range(25):
         a = rng.uniform(-1, 1, 8).astype(np.float32)
         a[[1, 5]] = [-1.0, 1.0]
+        if i % 3 == 0:  # a small move: within the speed cap
+            a[[0, 1, 2, 4, 5, 6]] *= 0.1
+        proposed, ctrl = ref.command_targets(a)
+        d = safety.filter(ref.target, proposed, res.link_points, tool=res.observation[:, 0:3])
+        res = ref.step_targets(d.target, safety.finger_opening(ctrl))
         state = step(state, jnp.asarray(a))
-        res = ref.step(a)
         np.testing.assert_allclose(np.asarray(env.backend.mocap_pos(state.data))[:2],
                                    res.target, atol=1e-5)
+        pen = np.asarray(state.info["intervention_penalty"])
+        expect = -0.25 if set(d.reasons) & {"workspace", "speed", "clearance"} else 0.0
+        np.testing.assert_array_equal(pen, [expect, expect])
+        # the reward carries it, and a relabelled reward (HER: another goal, the same info)
+        np.testing.assert_allclose(np.asarray(env.compute_reward(
+            state.obs["achieved_goal"], state.obs["desired_goal"], state.info)),
+            np.asarray(state.reward), atol=1e-6)
+        charged += expect != 0.0
+    assert 0 < charged < 25

@@ -64,6 +64,12 @@ FLAGS = (
     ("--speed-scale", dict(type=float, default=None, metavar="S",
                            help="with --limits: scale the file's max_speed by S in (0, 1] "
                                 "(as daddpg-robot-client --speed-scale; default 1)")),
+    ("--intervention-penalty", dict(type=float, default=None, metavar="C",
+                                    help="with --limits: each step in which the limits change "
+                                         "a target costs both arms C in reward, so the policy "
+                                         "learns to ask for what the robot will do (fewer "
+                                         "safety interventions; env field "
+                                         "intervention_penalty; default 0 = off)")),
     # the run directory (cli.train.resolve, running.run_dirs)
     ("--out", dict(default=None,
                    help="run directory (default runs/<task>_<algo>_s<seed>_<time>); must be "
@@ -262,8 +268,8 @@ def limits_values(path: str, speed_scale: float | None, task: str, env_over: dic
         safety = limits.safety_limits(1.0 if speed_scale is None else speed_scale)
     except LimitsError as e:
         raise ConfigError(f"--limits: {e}") from None
-    env = registry.task_config(task, **{k: v for k, v in env_over.items()
-                                        if k != "robot_limits"})
+    env = registry.task_config(task, **{k: v for k, v in env_over.items()  # (its timing)
+                                        if k not in ("robot_limits", "intervention_penalty")})
     dt = float(env.timestep) * int(env.n_substeps)
     if abs(limits.control_period - dt) > 1e-9 + 1e-6 * dt:
         raise ConfigError(f"--limits: the file's control period {limits.control_period:g} s is "
@@ -276,9 +282,18 @@ def limits_values(path: str, speed_scale: float | None, task: str, env_over: dic
 
 
 def _apply_limits(args, task: str, env_over: dict) -> None:
-    """--limits / --speed-scale into ``env_over`` (a resumed run keeps its recorded limits:
-    --limits must give the same values)."""
+    """--limits / --speed-scale / --intervention-penalty into ``env_over`` (a resumed run keeps
+    its recorded limits and penalty: the flags must give the same values)."""
     path, scale = getattr(args, "limits", None), getattr(args, "speed_scale", None)
+    penalty = getattr(args, "intervention_penalty", None)
+    if penalty is not None:
+        if penalty < 0:
+            raise ConfigError(f"--intervention-penalty must be >= 0, got {penalty:g}")
+        if (getattr(args, "resume", None)
+                and float(env_over.get("intervention_penalty", 0.0)) != float(penalty)):
+            raise ConfigError("--resume: --intervention-penalty differs from the run's recorded "
+                              "penalty; start a new run instead")
+        env_over["intervention_penalty"] = float(penalty)
     if path is None:
         if scale is not None:
             raise ConfigError("--speed-scale needs --limits")
