@@ -13,9 +13,12 @@ larger on every side with margin 0 (MJX's box-box collision ignores contact marg
 box-box contact point once, as the C engine does (the scenes' numeric `MJX_UNIQUE_CONTACTS`,
 which the C engine ignores), and pot's finger-handle contacts are softer (solimp 0.9 0.95); on
 the C engine, push and pick up act in versions 2 and 3 alike. See docs/MJX_VS_C.md.
-The scenes in assets/ are the current version; `load_model` builds the older ones from them
-(version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`), so that a run or a policy file
-acts with the physics it was trained on (`physics_version_note` says when it does not).
+4 (opt-in, `mjx_envs.settings.LATEST_PHYSICS_VERSION`): the grasp pairs' fingers as box-shaped
+convex meshes, so that a tilted finger gives the same contact points on both engines
+(`PHYSICS_V4`). The scenes in assets/ are the current version; `load_model` builds the others
+from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`),
+so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
+says when it does not).
 """
 
 from __future__ import annotations
@@ -37,6 +40,19 @@ CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC,
 MJX_UNIQUE_CONTACTS = "mjx_unique_contact_points"
 """Name of a scene's custom numeric: 1 = MJX returns each contact point of a box-box or
 convex-convex pair once, as the C engine does (`mjx_envs.physics.mjx_contacts`)."""
+
+MJX_BOX_MESHES = "mjx_box_meshes"
+"""Name of a scene's custom numeric: 1 = MJX collides a (box, box-shaped mesh) pair with its
+box-box collider, the mesh as a box of its geom's size (`mjx_envs.physics.mjx_contacts`)."""
+
+PHYSICS_V4 = dict(scenes=("scene_pickup.xml", "scene_pot.xml"), grasp_friction=1.0)
+"""Physics version 4 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+the shipped scenes: in the named scenes each finger pair whose sliding friction exceeds
+``grasp_friction`` (the grasp pairs: finger-neck, finger-handle) collides a copy of the finger
+box as a box-shaped convex mesh (geom ``<finger>_mesh``: no mass, group 3, in no other pair),
+and the scene has the numeric `MJX_BOX_MESHES`. A tilted finger corner on a face then gives the
+same contact points on both engines: the C engine's multi-contact convex collider (multiccd)
+where its box-box returns the deepest corner alone, MJX's box-box (docs/MJX_VS_C.md)."""
 
 PHYSICS_V2 = dict(
     pair_solimp={
@@ -66,7 +82,10 @@ the friction of the finger pairs with the named object geoms."""
 def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
-    tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names."""
+    tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
+    the scenes `PHYSICS_V4` names, on both engines."""
+    if version == 4:
+        return registry.is_task(task) and registry.get(task).config.scene in PHYSICS_V4["scenes"]
     if version == 3 and engine == "c":
         return (registry.is_task(task) and registry.get(task).config.scene
                 in PHYSICS_V2["pair_solimp"])
@@ -121,28 +140,44 @@ def scene_path(scene: str) -> Iterator[Path]:
 def load_model(scene: str, timestep: float | None = None, cone: str | None = None,
                physics_version: int | None = None) -> mujoco.MjModel:
     """The scene's model with the task's ``timestep`` and friction ``cone`` (when given), in
-    physics version ``physics_version`` (default: the current one, the scene as shipped; older
-    ones apply this module's record of what they had instead, e.g. `PHYSICS_V1`)."""
+    physics version ``physics_version`` (default: the current one, the scene as shipped; the
+    others apply this module's record of what they change instead, e.g. `PHYSICS_V1`)."""
     if cone is not None and cone not in CONES:
         raise ValueError(f"cone must be one of {sorted(CONES)}, got {cone!r}")
-    version = settings.PHYSICS_VERSION if physics_version is None else int(physics_version)
-    if not 1 <= version <= settings.PHYSICS_VERSION:
-        raise ValueError(f"physics_version must be in [1, {settings.PHYSICS_VERSION}], got "
-                         f"{physics_version!r}")
+    version = check_version(physics_version)
     with scene_path(scene) as path:
         if version == settings.PHYSICS_VERSION:
             m = mujoco.MjModel.from_xml_path(str(path))
         else:
             spec = mujoco.MjSpec.from_file(str(path))
-            _physics_v2(spec, scene)
-            if version == 1:
-                _physics_v1(spec, scene)
+            edit_spec(spec, scene, version)
             m = spec.compile()
+    if version == 4:
+        check_box_meshes(m)
     if timestep is not None:
         m.opt.timestep = float(timestep)
     if cone is not None:
         m.opt.cone = CONES[cone]
     return m
+
+
+def check_version(physics_version: int | None) -> int:
+    """The physics version asked for (None: the current one); ValueError outside [1, latest]."""
+    version = settings.PHYSICS_VERSION if physics_version is None else int(physics_version)
+    if not 1 <= version <= settings.LATEST_PHYSICS_VERSION:
+        raise ValueError(f"physics_version must be in [1, {settings.LATEST_PHYSICS_VERSION}], "
+                         f"got {physics_version!r}")
+    return version
+
+
+def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
+    """Turns a shipped scene's spec (the current physics version) into ``version``'s."""
+    if version < 3:
+        _physics_v2(spec, scene)
+    if version == 1:
+        _physics_v1(spec, scene)
+    if version == 4:
+        _physics_v4(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -180,6 +215,45 @@ def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
         if any(_is_finger(n) for n in (pair.geomname1, pair.geomname2)):
             pair.margin = v1["finger_pair_margin"]
     _finger_pairs(spec, "friction", v1["pair_friction"].get(scene, {}))
+
+
+def _physics_v4(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a shipped scene's spec into version 4 (`PHYSICS_V4`)."""
+    if scene not in PHYSICS_V4["scenes"]:
+        return
+    fingers = {g.name: (b, g) for b in spec.bodies for g in b.geoms if _is_finger(g.name)}
+    meshes: dict[tuple, str] = {}
+    for pair in spec.pairs:
+        for attr in ("geomname1", "geomname2"):
+            name = getattr(pair, attr)
+            if name not in fingers or pair.friction[0] <= PHYSICS_V4["grasp_friction"]:
+                continue
+            body, geom = fingers[name]
+            if spec.geom(name + "_mesh") is None:
+                half = tuple(float(x) for x in geom.size[:3])
+                if half not in meshes:
+                    meshes[half] = f"finger_box_{len(meshes)}"
+                    corners = [(x, y, z) for x in (-half[0], half[0])
+                               for y in (-half[1], half[1]) for z in (-half[2], half[2])]
+                    spec.add_mesh(name=meshes[half],
+                                  uservert=np.asarray(corners, np.float64).ravel().tolist())
+                body.add_geom(name=name + "_mesh", type=mujoco.mjtGeom.mjGEOM_MESH,
+                              meshname=meshes[half], pos=list(geom.pos), quat=list(geom.quat),
+                              contype=0, conaffinity=0, group=3, density=0.0)
+            setattr(pair, attr, name + "_mesh")
+    spec.add_numeric(name=MJX_BOX_MESHES, data=[1.0])
+
+
+def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:
+    """ValueError unless every mesh geom of ``m`` is a box of its geom's size (8 vertices at
+    +-size in the geom's frame): MJX collides them as such boxes (`MJX_BOX_MESHES`)."""
+    for g in range(m.ngeom):
+        if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        i = int(m.geom_dataid[g])
+        v = m.mesh_vert[m.mesh_vertadr[i]:m.mesh_vertadr[i] + m.mesh_vertnum[i]]
+        if len(v) != 8 or np.abs(np.abs(v) - m.geom_size[g]).max() > tol:
+            raise ValueError(f"geom {m.geom(g).name!r}: its mesh is not a box of its size")
 
 
 def home_state(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:

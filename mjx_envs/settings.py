@@ -30,6 +30,13 @@ with the physics it was trained on (its record: config.json's and the export's
 ``physics_version``, absent = 1; `recorded_physics_version`). See docs/MJX_VS_C.md."""
 
 
+LATEST_PHYSICS_VERSION = 4
+"""The newest physics version a run may ask for (``--env physics_version=N``). Version 4 (the
+finger boxes of the grasp pairs as box-shaped convex meshes: the same contact points on both
+engines at any tilt; `mjx_envs.model.PHYSICS_V4`) is opt-in until its MJX -> C measurement
+(docs/MJX_VS_C.md) makes it the default; new runs get `PHYSICS_VERSION`."""
+
+
 def recorded_physics_version(recorded) -> int:
     """The physics version of a record (config.json's or a policy export's
     ``physics_version``): absent (None) means 1, the version before it was recorded."""
@@ -66,7 +73,9 @@ class TaskConfig:
                                 "contacts before the engines were made to agree; 2: before MJX "
                                 "returned each box-box contact point once; kept so that older "
                                 "runs and policy files act with the physics they were trained "
-                                "on)", low=1, high=PHYSICS_VERSION)
+                                "on; 4: opt-in, the grasp pairs' fingers as box-shaped meshes, "
+                                "mjx_envs.settings.LATEST_PHYSICS_VERSION)", low=1,
+                                high=LATEST_PHYSICS_VERSION)
     max_delta: float = spec(0.05, "largest move of a gripper target per control step along "
                             "each axis, metres", low=0.0, low_open=True)
     lock_fingers: bool = spec(True, "ignore the finger command and hold the fingers at "

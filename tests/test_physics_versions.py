@@ -8,13 +8,22 @@ from __future__ import annotations
 
 import os
 
+import mujoco
 import numpy as np
 import pytest
 
 import mjx_envs
 from daddpg_jax.cli import evaluate as evaluate_cli
 from mjx_envs import registry, settings
-from mjx_envs.model import MJX_UNIQUE_CONTACTS, PHYSICS_V1, load_model
+from mjx_envs.model import (
+    MJX_BOX_MESHES,
+    MJX_UNIQUE_CONTACTS,
+    PHYSICS_V1,
+    PHYSICS_V4,
+    check_box_meshes,
+    load_model,
+    physics_changed,
+)
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
 
@@ -120,7 +129,7 @@ def test_envs_build_the_version_they_are_given():
 
 def test_an_unknown_version_is_refused(capsys):
     """Out of range: ValueError, ConfigError, and one line + exit 2 from daddpg-evaluate (~0 s)."""
-    for bad in (0, settings.PHYSICS_VERSION + 1):
+    for bad in (0, settings.LATEST_PHYSICS_VERSION + 1):
         with pytest.raises(ValueError, match="physics_version"):
             load_model("scene_push.xml", physics_version=bad)
         with pytest.raises(ConfigError, match="physics_version"):
@@ -128,3 +137,78 @@ def test_an_unknown_version_is_refused(capsys):
         assert evaluate_cli.main(["no_such_run", "--physics-version", str(bad)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--physics-version must be in" in err
+
+
+def _corners(m, g) -> np.ndarray:
+    """The 8 corners of box (or box-shaped mesh) geom ``g`` in its body's frame, sorted."""
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, m.geom_quat[g])
+    signs = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    pts = m.geom_pos[g] + (signs * m.geom_size[g]) @ rot.reshape(3, 3).T
+    return pts[np.lexsort(np.round(pts, 6).T)]
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_version_4_meshes_the_grasp_pairs_fingers(scene):
+    """Version 4 (opt-in) adds, in pick up's and pot's scenes, a box-shaped mesh copy of each
+    finger box (same body, pose and size, no mass, in no other pair) and moves the four grasp
+    pairs (friction > 1) to it, plus the numeric `MJX_BOX_MESHES`; every other pair, geom and
+    body is version 3's; push and reach are version 3 exactly (~0.3 s)."""
+    v3, v4 = load_model(scene), load_model(scene, physics_version=4)
+    if scene not in PHYSICS_V4["scenes"]:
+        a3, a4 = _arrays(v3), _arrays(v4)
+        for name in a3:
+            np.testing.assert_array_equal(a3[name], a4[name], err_msg=name)
+        assert not physics_changed(4, {"scene_push.xml": "push"}.get(scene, "reach"))
+        return
+    assert physics_changed(4, {"scene_pickup.xml": "pickup"}.get(scene, "pot"))
+    assert v4.numeric(MJX_BOX_MESHES).data.tolist() == [1.0]
+    check_box_meshes(v4)
+    meshes = [g for g in range(v4.ngeom) if v4.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    assert len(meshes) == 4 and v4.ngeom == v3.ngeom + 4 and v4.npair == v3.npair
+    for g in meshes:
+        finger = v4.geom(v4.geom(g).name.removesuffix("_mesh")).id
+        assert v4.geom_bodyid[g] == v4.geom_bodyid[finger]
+        # MuJoCo turns a mesh to its principal axes (sizes permuted, the quat turned with them):
+        # the same box means the same corners in the body's frame
+        np.testing.assert_allclose(_corners(v4, g), _corners(v4, finger), atol=1e-6)
+        assert v4.geom_contype[g] == v4.geom_conaffinity[g] == 0
+    np.testing.assert_array_equal(v3.body_mass, v4.body_mass)
+    np.testing.assert_allclose(v3.body_inertia, v4.body_inertia)
+    moved = 0
+    for i in range(v3.npair):
+        n3 = (v3.geom(int(v3.pair_geom1[i])).name, v3.geom(int(v3.pair_geom2[i])).name)
+        n4 = (v4.geom(int(v4.pair_geom1[i])).name, v4.geom(int(v4.pair_geom2[i])).name)
+        grasp = v3.pair_friction[i][0] > PHYSICS_V4["grasp_friction"] and any(
+            n.endswith(("_finger1", "_finger2")) for n in n3)
+        assert n4 == tuple(n + "_mesh" if grasp and n.endswith(("_finger1", "_finger2"))
+                           else n for n in n3)
+        np.testing.assert_array_equal(v3.pair_friction[i], v4.pair_friction[i])
+        np.testing.assert_array_equal(v3.pair_solimp[i], v4.pair_solimp[i])
+        moved += grasp
+    assert moved == 4
+
+
+@pytest.mark.mjx
+def test_version_4_gives_both_engines_the_same_contact_points():
+    """A finger pressed into a bar neck at 24 tilts (flat, about one axis, about two; the
+    experiments' static probe, experiments/engine_parity/manifold_static.py) as version 4
+    collides it, a box-shaped mesh with MJX's routing: the C engine (multi-contact convex) and
+    MJX (its box-box, physics version 3's unique points) return as many points at every pose,
+    with summed depths within 0.02 mm (MJX in float32). As boxes (version 3), the C engine returns one corner where MJX
+    returns two or three at some of them (~40 s: one MJX compile)."""
+    from experiments.engine_parity import manifold_static as ms
+
+    rng = np.random.default_rng(0)
+    tilts = [(0, 0, 0), (0, 2, 0), (0, 0, 2)] + [tuple(t) for t in rng.uniform(-3, 3, (21, 3))]
+    poses = [ms.finger_pose(t, p) for t, p in zip(tilts, rng.uniform(2e-4, 1.5e-3, 24),
+                                                  strict=True)]
+    m = ms.model("meshfinger_mjxbox")
+    c, mjx = ms.c_points(m, poses), ms.mjx_points(m, poses)
+    diff = []
+    for a, b in zip(c, mjx, strict=True):
+        assert len(a) == len(b), (a, b)
+        diff.append(abs(sum(x[0] for x in a) - sum(x[0] for x in b)))  # summed depths, mm
+    assert max(diff) < 0.02 and np.mean(diff) < 0.005, diff
+    boxes = ms.c_points(ms.model("boxbox"), poses)
+    assert sum(len(a) < len(b) for a, b in zip(boxes, mjx, strict=True)) >= 5

@@ -25,7 +25,7 @@ import numpy as np
 
 from daddpg_jax.analysis.evaluation import Z95, evaluate, wilson_interval
 from mjx_envs.schema import ConfigError
-from mjx_envs.settings import PHYSICS, PHYSICS_VERSION
+from mjx_envs.settings import LATEST_PHYSICS_VERSION, PHYSICS
 
 WARP = "warp"
 """MJX's Warp implementation (``mjx.put_model(..., impl="warp")``): CUDA only, not an engine here"""
@@ -63,8 +63,8 @@ def check_request(physics: str | None, episodes: int, chunk: int | None = None,
     names = (None,) if physics is None else parse_engines(physics)
     if len(names) > 1 and (perturb or video):
         raise ConfigError("--perturb and --video take one engine, not a comparison")
-    if physics_version is not None and not 1 <= physics_version <= PHYSICS_VERSION:
-        raise ConfigError(f"--physics-version must be in [1, {PHYSICS_VERSION}], got "
+    if physics_version is not None and not 1 <= physics_version <= LATEST_PHYSICS_VERSION:
+        raise ConfigError(f"--physics-version must be in [1, {LATEST_PHYSICS_VERSION}], got "
                           f"{physics_version}")
     if divergence and len(names) < 2:
         raise ConfigError("--divergence needs two engines, e.g. --physics c,mjx")

@@ -53,8 +53,8 @@ def build_parser():
              "compare over the same episodes, e.g. c,mjx (success per engine, and their "
              "difference with its paired 95%% Newcombe interval)")
     add("--physics-version", type=int, default=None, metavar="N",
-        help="simulate physics version N (1 to the current one, "
-             "mjx_envs.settings.PHYSICS_VERSION) instead of the one the run was trained on "
+        help="simulate physics version N (1 to mjx_envs.settings.LATEST_PHYSICS_VERSION; "
+             "the current one: PHYSICS_VERSION) instead of the one the run was trained on "
              "(default, recorded in its config.json); e.g. an older run on today's physics")
     add("--limits", metavar="FILE", default=None,
         help="evaluate through a robot limits file's rules (daddpg-robot-client --limits): "

@@ -8,7 +8,7 @@ the fraction of states where it fell > 20 mm and the mean absolute difference of
 Environment: LOADS (comma list, default 0,3,8), UNIQ=1 (MJX with the unique-points prototype,
 unique_points.py), JAX_ENABLE_X64=1 (float64 MJX). Candidates: model edits of the grasp pairs
 and solver options, or finger pads (pads.py; ``meshf_mjxbox`` / ``meshneck_mjxbox``: box-shaped
-meshes that MJX collides as boxes, box_meshes.py). Outputs:
+meshes that MJX collides as boxes, mjx_envs/physics/mjx_contacts.py). Outputs:
 docs/results/engines/grasp_hold/hold_*.json, docs/results/engines/unique_points/h_*.json and
 docs/results/engines/manifold_search/hold_*.json (docs/MJX_VS_C.md).
 """
@@ -110,9 +110,7 @@ def main(argv=None) -> int:
     st = pt.sample_states(task, N, dtype=np.float64 if os.environ.get("JAX_ENABLE_X64")
                           else np.float32)
     out = json.load(open(out_path)) if os.path.exists(out_path) else {}
-    backends.import_mjx()
-    from experiments.engine_parity import box_meshes
-    box_meshes.install()   # acts only on models with its numeric (pads *_mjxbox)
+    backends.import_mjx()   # also routes box-shaped meshes for models with the numeric (*_mjxbox)
     if os.environ.get("UNIQ"):
         from experiments.engine_parity import unique_points
         unique_points.install()

@@ -57,7 +57,8 @@ SETUPS = {
     "meshneck_noccd": ("box", "mesh", ("multiccd",)),
     "meshboth": ("mesh", "mesh", ()),
     "meshboth_noccd": ("mesh", "mesh", ("multiccd",)),
-    # MJX collides the box-shaped mesh as a box (box_meshes.py); C as a mesh, multiccd on
+    # MJX collides the box-shaped mesh as a box (physics version 4's routing,
+    # mjx_envs/physics/mjx_contacts.py); C as a mesh, multiccd on
     "meshfinger_mjxbox": ("mesh", "box", ()),
     "meshneck_mjxbox": ("box", "mesh", ()),
 }
@@ -146,11 +147,11 @@ def mjx_points(m, poses) -> list:
     from mjx_envs.physics import backends
 
     mjx = backends.import_mjx()   # installs physics version 3's unique points
-    from experiments.engine_parity import box_meshes
+    from mjx_envs import model as model_lib
 
-    box_meshes.install()   # acts only on models with its numeric
-    if box_meshes.NUMERIC in [m.numeric(i).name for i in range(m.nnumeric)]:
-        box_meshes.check(m)
+    # import_mjx also routes box-shaped meshes for models with the numeric (physics version 4)
+    if model_lib.MJX_BOX_MESHES in [m.numeric(i).name for i in range(m.nnumeric)]:
+        model_lib.check_box_meshes(m)
     mm = mjx.put_model(m)
     d0 = mjx.make_data(mm)
 

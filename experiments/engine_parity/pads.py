@@ -9,8 +9,9 @@ Pad kinds (`PADS`): ``spheres`` (2 x 4 spheres of 6 mm), ``dense`` (4 x 9 touchi
 0.05), ``meshf`` / ``meshf_noccd`` (the finger boxes as convex meshes, with or without
 multiccd), ``meshneck`` / ``meshneck_noccd`` (the grasped object geoms, the bar's necks or the
 pot's handles, as box-shaped convex meshes in the grasp pairs; the fingers stay boxes), and
-``meshf_mjxbox`` / ``meshneck_mjxbox`` (the same, with box_meshes.py's numeric: MJX collides
-the meshes as boxes, the C engine as meshes with multi-contact).
+``meshf_mjxbox`` / ``meshneck_mjxbox`` (the same, with the numeric of physics version 4: MJX
+collides the meshes as boxes, the C engine as meshes with multi-contact; ``meshf_mjxbox`` is
+physics version 4's ``mjx_envs.model.PHYSICS_V4``).
 `model(kind, scene)` builds one model; `patch(kind)` makes every model the package loads
 (trainer, evaluation, the parity measurement) carry the pads.
 """
@@ -157,13 +158,11 @@ def edit_for(kind: str):
     if kind in ("meshneck", "meshneck_noccd"):
         return mesh_objects
     if kind in ("meshf_mjxbox", "meshneck_mjxbox"):
-        from experiments.engine_parity import box_meshes
-
         edit = mesh_fingers if kind == "meshf_mjxbox" else mesh_objects
 
         def mjxbox(spec):
             edit(spec)
-            spec.add_numeric(name=box_meshes.NUMERIC, data=[1.0])
+            spec.add_numeric(name=model_lib.MJX_BOX_MESHES, data=[1.0])
         return mjxbox
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
@@ -210,10 +209,8 @@ def patch(kind: str, scenes=GRASP_SCENES):
     environment when set."""
     from mjx_envs.tasks import grasp_start, scripted
 
-    edit_for(kind)   # unknown kinds fail here
-    if kind.endswith("_mjxbox"):
-        from experiments.engine_parity import box_meshes
-        box_meshes.install()
+    edit_for(kind)   # unknown kinds fail here (MJX routes *_mjxbox's meshes as it loads:
+    # mjx_envs.physics.mjx_contacts)
     orig = model_lib.load_model
 
     def load(scene, timestep=None, cone=None, physics_version=None):

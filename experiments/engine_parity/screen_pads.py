@@ -5,7 +5,8 @@ controller over the 32 fixed episodes on both engines, with the 10-step divergen
     python experiments/engine_parity/screen_pads.py KIND OUT.json TASK [TASK ...]
 
 KIND: spheres, dense, caps, caps3, recessed (OUT_M, GRID, SETTLE, HOLD_HI from the environment),
-meshf, meshf_noccd, meshneck, meshneck_noccd, meshf_mjxbox, meshneck_mjxbox (box_meshes.py).
+meshf, meshf_noccd, meshneck, meshneck_noccd, meshf_mjxbox, meshneck_mjxbox (physics version 4's
+numeric).
 Outputs: docs/results/engines/finger_pads/screen_pickup_pot.json (spheres),
 docs/results/engines/grasp_hold/screen_dense_pickup.json, recessed_*.json and their logs.
 """

@@ -1,4 +1,5 @@
-"""MJX's box-box and convex contact points, each point once (physics version 3).
+"""MJX's box-box and convex contact points, each point once (physics version 3), and
+box-shaped meshes collided as boxes (physics version 4).
 
 MJX's box-box and convex-convex collisions (``mujoco/mjx/_src/collision_convex.py``) return a
 fixed set of 4 contact points per pair, chosen by ``_manifold_points`` as arg-maxima over the
@@ -19,12 +20,23 @@ of older physics versions, and any other model in the process, step exactly as b
 repeated point keeps its position and gets MJX's "no contact" distance (1.0, the value
 ``plane_convex`` and the clipped manifold use), so its constraint rows are inactive. The C
 engine ignores the numeric.
+
+Physics version 4's grasp pairs hold a finger box as a box-shaped convex mesh
+(`mjx_envs.model.PHYSICS_V4`): the C engine collides it with its multi-contact convex collider,
+which returns the same points as MJX's box-box at any tilt, where the C engine's box-box
+returns one corner and MJX's convex-convex can return one point where the faces lie flat.
+`install` also routes MJX's (box, mesh) pairs to its box-box collider (with the wrapper above),
+the mesh as a box of its geom's size, for a model with the numeric `BOX_MESHES` = 1
+(`mjx_envs.model.check_box_meshes` holds for it); other models collide as before.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 
+from mjx_envs.model import MJX_BOX_MESHES as BOX_MESHES
 from mjx_envs.model import MJX_UNIQUE_CONTACTS as NUMERIC
 
 TOLERANCE = 1e-6
@@ -60,15 +72,36 @@ def _unique(collide):
     return collide_unique
 
 
+def _box_meshes(box_mesh, box_box):
+    # lazy: see `install`
+    from mujoco.mjx._src import collision_driver
+    from mujoco.mjx._src.types import GeomType
+
+    def collide_as_boxes(m, d, key, geom):
+        if collision_driver._numeric(m, BOX_MESHES) == 1:  # a static field of the model
+            as_box = dataclasses.replace(key, types=(GeomType.BOX, GeomType.BOX),
+                                         data_ids=(-1, -1))
+            return box_box(m, d, as_box, geom)
+        return box_mesh(m, d, key, geom)
+
+    collide_as_boxes.ncon = box_mesh.ncon
+    collide_as_boxes.routes_box_meshes = True
+    return collide_as_boxes
+
+
 def install() -> None:
-    """Wraps MJX's box-box and convex-convex colliders (idempotent). Called by
-    `mjx_envs.physics.backends.import_mjx`, i.e. before any MJX function of this package is
-    traced."""
+    """Wraps MJX's box-box and convex-convex colliders and routes its (box, mesh) pairs
+    (idempotent). Called by `mjx_envs.physics.backends.import_mjx`, i.e. before any MJX function
+    of this package is traced."""
     # lazy: MJX's private collision table loads only with MJX (`backends.import_mjx`)
     from mujoco.mjx._src import collision_convex, collision_driver
+    from mujoco.mjx._src.types import GeomType
 
     table = collision_driver._COLLISION_FUNC
     for types, collide in list(table.items()):
         if collide in (collision_convex.box_box, collision_convex.convex_convex):
             table[types] = _unique(collide)
-
+    box_mesh, box_box = table[(GeomType.BOX, GeomType.MESH)], table[(GeomType.BOX, GeomType.BOX)]
+    if not getattr(box_mesh, "routes_box_meshes", False):
+        assert box_mesh.ncon == box_box.ncon, "MJX's box-mesh and box-box manifold sizes differ"
+        table[(GeomType.BOX, GeomType.MESH)] = _box_meshes(box_mesh, box_box)

@@ -142,7 +142,11 @@ class FingerContacts:
 
     def __init__(self, model: mujoco.MjModel, object_body: str):
         self.model, self.data = model, mujoco.MjData(model)
-        self.fingers = {model.geom(name).id: name for name in self.FINGERS}
+        # every geom of a finger's body counts as that finger (physics version 4 adds a mesh
+        # copy of each finger box for its grasp pairs, `mjx_envs.model.PHYSICS_V4`)
+        bodies = {int(model.geom(name).bodyid[0]): name for name in self.FINGERS}
+        self.fingers = {g: bodies[int(model.geom_bodyid[g])] for g in range(model.ngeom)
+                        if int(model.geom_bodyid[g]) in bodies}
         self.body = model.body(object_body).id
 
     def forces(self, qpos, qvel, mocap) -> dict[str, float]:

@@ -151,13 +151,11 @@ def _add_tag(body, tag_id: int, size: float, pos, quat=(1.0, 0.0, 0.0, 0.0), nam
 
 def _spec(cfg) -> mujoco.MjSpec:
     """The scene's spec in the task's physics version (as `mjx_envs.model.load_model`)."""
-    version = int(getattr(cfg, "physics_version", settings_lib.PHYSICS_VERSION))
+    version = model_lib.check_version(getattr(cfg, "physics_version", None))
     with model_lib.scene_path(cfg.scene) as path:
         spec = mujoco.MjSpec.from_file(str(path))
     if version != settings_lib.PHYSICS_VERSION:
-        model_lib._physics_v2(spec, cfg.scene)
-        if version == 1:
-            model_lib._physics_v1(spec, cfg.scene)
+        model_lib.edit_spec(spec, cfg.scene, version)
     return spec
 
 
