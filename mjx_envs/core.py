@@ -191,7 +191,8 @@ class DualArmEnv:
         `mjx_envs.limit_rules` (workspace clamp, speed cap and arm clearance from ``current``,
         with the link points and tool positions measured in ``state``), as the robot client's
         safety layer moves them, and a bool that is True where its count of interventions would
-        rise; (``target`` itself, False) without limits (``robot_limits = ()``)."""
+        rise (the finger range aside: `_finger_ctrl` applies it); (``target`` itself, False)
+        without limits (``robot_limits = ()``)."""
         if self.limits is None:
             return target, jnp.zeros((), bool)
         links, tool = limit_rules.measured(jnp, self.sensors, self.backend.sensordata(state.data),

@@ -137,6 +137,9 @@ class NumpyDualArmEnv:
     def info_terms(self, arm_clearance) -> tuple[float, dict[str, np.ndarray]]:
         """(arm_contact 0/1, goal-independent reward terms) for an arm clearance, metres."""
         contact, info = self.rules.contact_terms(np, np.float32(arm_clearance))
+        if self.config.intervention_penalty > 0:  # as `DualArmEnv.charge`, after `step`
+            info["intervention_penalty"] = np.full(
+                (NUM_ARMS,), -self.config.intervention_penalty * self.intervened, np.float32)
         return float(contact), {k: np.asarray(v, np.float32) for k, v in info.items()}
 
     def finger_ctrl(self, finger_cmd) -> np.ndarray:
@@ -154,6 +157,7 @@ class NumpyDualArmEnv:
         """Home targets, ``qpos`` at rest, sensors from ``mj_forward`` (as the C backend's init)."""
         m, d = self.model, self.data
         self._t = 0
+        self.intervened = False
         self._target = self.home_mocap.copy()
         self._time = np.float32(0.0)
         self._qpos = np.array(qpos, np.float32).reshape(m.nq)
@@ -203,10 +207,12 @@ class NumpyDualArmEnv:
         (under the config's ``robot_limits`` too; the robot client applies its own instead:
         `command_targets`, its safety layer, `step_targets`)."""
         target, ctrl = self.command_targets(action)
+        self.intervened = False  # whether the rules changed a target (`info_terms`)
         if self.limits is not None:  # as the trainer's env under robot_limits
             links, tool = limit_rules.measured(np, self.sensors, self._sens, self.dt)
-            target, _, _ = limit_rules.apply(np, self.limits, self._target, target, links, tool,
-                                             np.zeros((NUM_ARMS,), np.float32))
+            target, _, flags = limit_rules.apply(np, self.limits, self._target, target, links,
+                                                 tool, np.zeros((NUM_ARMS,), np.float32))
+            self.intervened = bool(flags["workspace"] or flags["speed"] or flags["clearance"])
             ctrl = limit_rules.finger_opening(np, self.limits, ctrl)
         return self.step_targets(target, ctrl)
 

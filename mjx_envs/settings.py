@@ -147,9 +147,10 @@ class TaskConfig:
     intervention_penalty: float = spec(0.0, "with robot_limits: per-arm penalty for each control "
                                        "step in which the robot's rules change a target "
                                        "(workspace clamp, speed cap or arm clearance, either "
-                                       "arm: a step the robot client counts as an "
-                                       "intervention; goal-independent; daddpg-train "
-                                       "--intervention-penalty C); 0 = off", low=0.0)
+                                       "arm, as the robot client counts interventions; the "
+                                       "finger range is not charged; goal-independent; "
+                                       "daddpg-train --intervention-penalty C); 0 = off",
+                                       low=0.0)
 
     def __post_init__(self):
         finalize(self)

@@ -12,7 +12,7 @@ from daddpg_jax.cli.train import build_parser
 from daddpg_jax.deploy import trained_limits
 from daddpg_jax.deploy.limits import RobotLimits
 from daddpg_jax.deploy.safety import SafetyFilter
-from mjx_envs import limit_rules
+from mjx_envs import limit_rules, settings
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
 
@@ -133,6 +133,27 @@ def test_intervention_penalty_flag():
     with pytest.raises(ConfigError, match="--resume: --intervention-penalty"):
         resolve.resolve_config(parser.parse_args(
             ["--resume", "runs/x", "--intervention-penalty", "0.2"]), load)
+
+
+def test_gym_env_and_robot_side_simulator_under_the_penalty_and_versions():
+    """The Gymnasium env (NumPy simulator) charges the intervention penalty as the trainer's
+    env does: full-speed moves under ur3_cell.toml's 10 mm cap cost -C, a still step nothing,
+    and ``compute_reward`` with the step's info gives the step's reward. The robot client's
+    simulator takes the served policy's physics version (~1 s)."""
+    from daddpg_jax.deploy import robot_session
+    from mjx_envs import gym_env
+
+    flat = resolve.limits_values(CELL, None, "reach", {})
+    env = gym_env.DualUR3GoalEnv("reach", robot_limits=flat, intervention_penalty=0.3)
+    obs, info = env.reset(seed=0)
+    assert info["intervention_penalty"].tolist() == [0.0, 0.0]
+    for action, pen in ((np.ones(8, np.float32), -0.3), (np.zeros(8, np.float32), 0.0)):
+        obs, reward, _, _, info = env.step(action)
+        np.testing.assert_allclose(info["intervention_penalty"], [pen, pen])
+        np.testing.assert_allclose(env.unwrapped.compute_reward(
+            obs["achieved_goal"], obs["desired_goal"], info), reward, atol=1e-6)
+    assert robot_session.robot_task("pickup").physics_version == settings.PHYSICS_VERSION
+    assert robot_session.robot_task("pickup", 4).physics_version == 4
 
 
 def test_the_robot_side_names_its_tighter_limits():

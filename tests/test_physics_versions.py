@@ -195,8 +195,8 @@ def test_version_4_gives_both_engines_the_same_contact_points():
     experiments' static probe, experiments/engine_parity/manifold_static.py) as version 4
     collides it, a box-shaped mesh with MJX's routing: the C engine (multi-contact convex) and
     MJX (its box-box, physics version 3's unique points) return as many points at every pose,
-    with summed depths within 0.02 mm (MJX in float32). As boxes (version 3), the C engine returns one corner where MJX
-    returns two or three at some of them (~40 s: one MJX compile)."""
+    with summed depths within 0.02 mm (MJX in float32). As boxes (version 3), the C engine
+    returns one corner where MJX returns two or three at some of them (~40 s: one compile)."""
     from experiments.engine_parity import manifold_static as ms
 
     rng = np.random.default_rng(0)

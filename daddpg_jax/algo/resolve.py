@@ -184,6 +184,11 @@ def _field_lines(cls, objs: dict) -> list:
     return lines
 
 
+RESUME_KEEPS = ("robot_limits", "intervention_penalty")
+"""env fields a resumed run keeps whatever --env says (--limits and --intervention-penalty may
+only repeat them)"""
+
+
 def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
     """(TrainConfig, env overrides) of daddpg-train's parsed flags `args`. The base is the task
     preset of a new run, or the recorded config of --resume / --config (read by
@@ -211,8 +216,12 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
         env_over.update(robust_env(cfg.task))
     cfg = cfg.replace(**_field_overrides(args))
     env_cls = type(registry.default_config(cfg.task))
+    kept = {k: env_over.get(k) for k in RESUME_KEEPS}
     env_over.update(schema.parse_overrides(env_cls, args.env, "--env"))
     _apply_limits(args, cfg.task, env_over)
+    if args.resume and any(env_over.get(k) != v for k, v in kept.items()):
+        raise ConfigError("--resume keeps the run's robot limits and intervention penalty "
+                          "(they shape its replay buffer and rewards); start a new run instead")
     registry.task_config(cfg.task, **env_over)   # validates the env fields together
     if cfg.n_demos > 0:
         _check_demos(cfg.task)

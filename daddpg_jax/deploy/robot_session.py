@@ -25,7 +25,7 @@ from daddpg_jax.deploy.limits import LimitsError, RobotLimits
 from daddpg_jax.deploy.recording import RecorderError, recorded
 from daddpg_jax.deploy.robot import Pacer, run_episodes
 from daddpg_jax.deploy.safety import SafetyFilter
-from mjx_envs import episode_starts, perturb, registry, schema
+from mjx_envs import episode_starts, perturb, registry, schema, settings
 from mjx_envs import observation as obs_lib
 
 COMPARED = ("scene", "episode_length", "timestep", "n_substeps", "max_delta", "lock_fingers",
@@ -105,10 +105,14 @@ def robot_limits(path: str | None, fast: bool = False, speed_scale: float = 1.0,
     return limits, limits.safety_limits(speed_scale)
 
 
-def robot_task(task: str):
+def robot_task(task: str, physics_version: int | None = None):
     """The robot's own settings of ``task`` (a mjx_envs.settings config): the task installed
-    with this package, standard episodes (the training-only options off)."""
-    return registry.task_config(task, **registry.test_overrides(task))
+    with this package, standard episodes (the training-only options off); its simulator (--arms
+    sim, ur-sim) in physics version ``physics_version`` (None: the current one)."""
+    over = dict(registry.test_overrides(task))
+    if physics_version is not None:
+        over["physics_version"] = int(physics_version)
+    return registry.task_config(task, **over)
 
 
 def check_model(info, own) -> None:
@@ -161,7 +165,14 @@ def served_policy(url: str, limits, task, sha256: str | None, token: str | None)
     if not isinstance(served, str) or served not in registry.TASK_SETTINGS:
         raise ServiceError(f"the service serves a policy of a task {str(served)[:40]!r} this "
                            f"robot does not have")
-    own = robot_task(served)
+    # a simulated robot acts with the physics the policy was trained with (its record; absent:
+    # version 1); the physics versions differ in collision geometry only, not in kinematics
+    version = info.get("physics_version")
+    version = settings.recorded_physics_version(version if isinstance(version, int) else None)
+    if not 1 <= version <= settings.LATEST_PHYSICS_VERSION:
+        raise ServiceError(f"the served policy's physics version {version} is not one this "
+                           f"package simulates (1 to {settings.LATEST_PHYSICS_VERSION})")
+    own = robot_task(served, version)
     check_model(info, own)
     return info, own
 

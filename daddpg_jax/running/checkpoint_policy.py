@@ -97,6 +97,8 @@ def load_run_policy(run_dir, step: int | None = None, best: bool = False,
         overrides["physics_version"] = int(physics_version)
     if robot_limits is not None:
         overrides["robot_limits"] = tuple(robot_limits)
+        if not overrides["robot_limits"]:  # no limits: nothing to charge
+            overrides["intervention_penalty"] = 0.0
     env = make_test_env(cfg, overrides)   # the training-only task options off
     target = actors.abstract_params(cfg, env.obs_size, env.goal_size)
     try:   # the newest readable checkpoint (a warning for each unreadable newer one)

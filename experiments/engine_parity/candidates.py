@@ -26,8 +26,10 @@ def _pairs_with(m: mujoco.MjModel, word: str) -> np.ndarray:
 
 
 def _finger_geoms(m: mujoco.MjModel) -> np.ndarray:
-    return np.asarray([i for i in range(m.ngeom)
-                       if "finger" in (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, i) or "")])
+    # the finger boxes (not physics version 4's mesh copies: their vertices stay)
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, i) or "" for i in range(m.ngeom)]
+    return np.asarray([i for i, n in enumerate(names)
+                       if "finger" in n and not n.endswith("_mesh")])
 
 
 def _solver(iterations: int, ls_iterations: int, tolerance: float | None = None):

@@ -93,9 +93,8 @@ def main(argv=None) -> int:
     m, n_sub = env.mj_model, env.config.n_substeps
     for k, v in (a.split("=") for a in argv[3:]):
         if k == "pads":
-            from experiments.engine_parity import box_meshes, pads
-            m = pads.like(v, f"scene_{task}.xml", m)
-            box_meshes.install()   # acts only on models with its numeric (*_mjxbox)
+            from experiments.engine_parity import pads
+            m = pads.like(v, f"scene_{task}.xml", m)   # MJX routes *_mjxbox's meshes itself
         elif k == "cone":
             m.opt.cone = int(v)
         elif k == "iters":

@@ -28,7 +28,8 @@ def pair_ids(m: mujoco.MjModel, words=GRASP, min_friction: float | None = 1.0,
             continue
         if min_friction is not None and not m.pair_friction[i][0] > min_friction:
             continue
-        if finger and not any(n.endswith(("finger1", "finger2")) for n in names):
+        if finger and not any(n.removesuffix("_mesh").endswith(("finger1", "finger2"))
+                              for n in names):
             continue
         out.append(i)
     return out

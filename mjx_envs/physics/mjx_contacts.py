@@ -72,7 +72,7 @@ def _unique(collide):
     return collide_unique
 
 
-def _box_meshes(box_mesh, box_box):
+def _box_meshes(box_mesh):
     # lazy: see `install`
     from mujoco.mjx._src import collision_driver
     from mujoco.mjx._src.types import GeomType
@@ -81,6 +81,8 @@ def _box_meshes(box_mesh, box_box):
         if collision_driver._numeric(m, BOX_MESHES) == 1:  # a static field of the model
             as_box = dataclasses.replace(key, types=(GeomType.BOX, GeomType.BOX),
                                          data_ids=(-1, -1))
+            # the table's box-box at call time (with whatever wraps it then)
+            box_box = collision_driver._COLLISION_FUNC[(GeomType.BOX, GeomType.BOX)]
             return box_box(m, d, as_box, geom)
         return box_mesh(m, d, key, geom)
 
@@ -104,4 +106,4 @@ def install() -> None:
     box_mesh, box_box = table[(GeomType.BOX, GeomType.MESH)], table[(GeomType.BOX, GeomType.BOX)]
     if not getattr(box_mesh, "routes_box_meshes", False):
         assert box_mesh.ncon == box_box.ncon, "MJX's box-mesh and box-box manifold sizes differ"
-        table[(GeomType.BOX, GeomType.MESH)] = _box_meshes(box_mesh, box_box)
+        table[(GeomType.BOX, GeomType.MESH)] = _box_meshes(box_mesh)
