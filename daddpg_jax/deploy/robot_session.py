@@ -165,10 +165,12 @@ def served_policy(url: str, limits, task, sha256: str | None, token: str | None)
     if not isinstance(served, str) or served not in registry.TASK_SETTINGS:
         raise ServiceError(f"the service serves a policy of a task {str(served)[:40]!r} this "
                            f"robot does not have")
-    # a simulated robot acts with the physics the policy was trained with (its record; absent:
-    # version 1); the physics versions differ in collision geometry only, not in kinematics
+    # a simulated robot acts with the physics the policy was trained with (the service reports
+    # it; a service that does not: the current version); the physics versions differ in
+    # collision geometry only, not in kinematics
     version = info.get("physics_version")
-    version = settings.recorded_physics_version(version if isinstance(version, int) else None)
+    if not isinstance(version, int) or isinstance(version, bool):
+        version = settings.PHYSICS_VERSION
     if not 1 <= version <= settings.LATEST_PHYSICS_VERSION:
         raise ServiceError(f"the served policy's physics version {version} is not one this "
                            f"package simulates (1 to {settings.LATEST_PHYSICS_VERSION})")
