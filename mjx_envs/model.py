@@ -45,14 +45,22 @@ MJX_BOX_MESHES = "mjx_box_meshes"
 """Name of a scene's custom numeric: 1 = MJX collides a (box, box-shaped mesh) pair with its
 box-box collider, the mesh as a box of its geom's size (`mjx_envs.physics.mjx_contacts`)."""
 
+MJX_FINITE_LINESEARCH = "mjx_finite_linesearch"
+"""Name of a scene's custom numeric: 1 = MJX's Newton line search treats an elliptic cone's
+squared tangential residual that float32 cancels to zero or below as 0, where MJX's own
+expression takes the square root of a negative number and the solver stalls at its warm start
+(`mjx_envs.physics.mjx_solver`)."""
+
 PHYSICS_V4 = dict(scenes=("scene_pickup.xml", "scene_pot.xml"), grasp_friction=1.0)
 """Physics version 4 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
 the shipped scenes: in the named scenes each finger pair whose sliding friction exceeds
 ``grasp_friction`` (the grasp pairs: finger-neck, finger-handle) collides a copy of the finger
 box as a box-shaped convex mesh (geom ``<finger>_mesh``: no mass, group 3, in no other pair),
-and the scene has the numeric `MJX_BOX_MESHES`. A tilted finger corner on a face then gives the
-same contact points on both engines: the C engine's multi-contact convex collider (multiccd)
-where its box-box returns the deepest corner alone, MJX's box-box (docs/MJX_VS_C.md)."""
+and the scene has the numerics `MJX_BOX_MESHES` and `MJX_FINITE_LINESEARCH`. A tilted finger corner
+on a face then gives the same contact points on both engines: the C engine's multi-contact
+convex collider (multiccd) where its box-box returns the deepest corner alone, MJX's box-box
+(docs/MJX_VS_C.md); and MJX's solver no longer stalls where float32 cancels a cone residual,
+which threw the bar in MJX's physics faults (the C engine ignores both numerics)."""
 
 PHYSICS_V2 = dict(
     pair_solimp={
@@ -242,6 +250,7 @@ def _physics_v4(spec: mujoco.MjSpec, scene: str) -> None:
                               contype=0, conaffinity=0, group=3, density=0.0)
             setattr(pair, attr, name + "_mesh")
     spec.add_numeric(name=MJX_BOX_MESHES, data=[1.0])
+    spec.add_numeric(name=MJX_FINITE_LINESEARCH, data=[1.0])
 
 
 def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:

@@ -17,6 +17,7 @@ from daddpg_jax.cli import evaluate as evaluate_cli
 from mjx_envs import registry, settings
 from mjx_envs.model import (
     MJX_BOX_MESHES,
+    MJX_FINITE_LINESEARCH,
     MJX_UNIQUE_CONTACTS,
     PHYSICS_V1,
     PHYSICS_V4,
@@ -152,8 +153,9 @@ def _corners(m, g) -> np.ndarray:
 def test_version_4_meshes_the_grasp_pairs_fingers(scene):
     """Version 4 (opt-in) adds, in pick up's and pot's scenes, a box-shaped mesh copy of each
     finger box (same body, pose and size, no mass, in no other pair) and moves the four grasp
-    pairs (friction > 1) to it, plus the numeric `MJX_BOX_MESHES`; every other pair, geom and
-    body is version 3's; push and reach are version 3 exactly (~0.3 s)."""
+    pairs (friction > 1) to it, plus the numerics `MJX_BOX_MESHES` and `MJX_FINITE_LINESEARCH`;
+    every other pair, geom and body is version 3's; push and reach are version 3 exactly
+    (~0.3 s)."""
     v3, v4 = load_model(scene), load_model(scene, physics_version=4)
     if scene not in PHYSICS_V4["scenes"]:
         a3, a4 = _arrays(v3), _arrays(v4)
@@ -163,6 +165,7 @@ def test_version_4_meshes_the_grasp_pairs_fingers(scene):
         return
     assert physics_changed(4, {"scene_pickup.xml": "pickup"}.get(scene, "pot"))
     assert v4.numeric(MJX_BOX_MESHES).data.tolist() == [1.0]
+    assert v4.numeric(MJX_FINITE_LINESEARCH).data.tolist() == [1.0]
     check_box_meshes(v4)
     meshes = [g for g in range(v4.ngeom) if v4.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
     assert len(meshes) == 4 and v4.ngeom == v3.ngeom + 4 and v4.npair == v3.npair

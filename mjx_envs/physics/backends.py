@@ -55,7 +55,7 @@ from flax import struct
 from mujoco import rollout
 
 from mjx_envs import randomize, settings
-from mjx_envs.physics import mjx_contacts
+from mjx_envs.physics import mjx_contacts, mjx_solver
 
 
 def default_physics() -> str:
@@ -77,13 +77,15 @@ _WARP_NOISE = re.compile(r"^Failed to import (mujoco_)?warp\b")
 
 
 def import_mjx():
-    """``mujoco.mjx`` with `mjx_contacts.install` applied (scenes of physics version 3 get each
-    box-box contact point once), imported without the "Failed to import warp" / "Failed to import
+    """``mujoco.mjx`` with `mjx_contacts.install` and `mjx_solver.install` applied (scenes of
+    physics version 3 get each box-box contact point once; version 4's, a finite line search),
+    imported without the "Failed to import warp" / "Failed to import
     mujoco_warp" lines that mujoco 4.0's MJX prints when the optional Warp backend is not
     installed (it is not used here). Only those lines are held back (logged at debug level);
     anything else printed during the import passes through."""
     if "mujoco.mjx" in sys.modules:
         mjx_contacts.install()
+        mjx_solver.install()
         return sys.modules["mujoco.mjx"]
     buf = io.StringIO()
     try:
@@ -97,6 +99,7 @@ def import_mjx():
             else:
                 print(line)
     mjx_contacts.install()
+    mjx_solver.install()
     return mjx
 
 
