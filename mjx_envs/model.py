@@ -225,16 +225,19 @@ def _physics_v1(spec: mujoco.MjSpec, scene: str) -> None:
     _finger_pairs(spec, "friction", v1["pair_friction"].get(scene, {}))
 
 
-def _physics_v4(spec: mujoco.MjSpec, scene: str) -> None:
-    """Turns a shipped scene's spec into version 4 (`PHYSICS_V4`)."""
+def _physics_v4(spec: mujoco.MjSpec, scene: str, grasp_friction: float | None = None) -> None:
+    """Turns a shipped scene's spec into version 4 (`PHYSICS_V4`); with ``grasp_friction``, the
+    finger pairs above that friction get the mesh copy instead (the engine probes' variants)."""
     if scene not in PHYSICS_V4["scenes"]:
         return
+    if grasp_friction is None:
+        grasp_friction = PHYSICS_V4["grasp_friction"]
     fingers = {g.name: (b, g) for b in spec.bodies for g in b.geoms if _is_finger(g.name)}
     meshes: dict[tuple, str] = {}
     for pair in spec.pairs:
         for attr in ("geomname1", "geomname2"):
             name = getattr(pair, attr)
-            if name not in fingers or pair.friction[0] <= PHYSICS_V4["grasp_friction"]:
+            if name not in fingers or pair.friction[0] <= grasp_friction:
                 continue
             body, geom = fingers[name]
             if spec.geom(name + "_mesh") is None:

@@ -11,7 +11,9 @@ multiccd), ``meshneck`` / ``meshneck_noccd`` (the grasped object geoms, the bar'
 pot's handles, as box-shaped convex meshes in the grasp pairs; the fingers stay boxes), and
 ``meshf_mjxbox`` / ``meshneck_mjxbox`` (the same, with the numeric of physics version 4: MJX
 collides the meshes as boxes, the C engine as meshes with multi-contact; ``meshf_mjxbox`` is
-physics version 4's ``mjx_envs.model.PHYSICS_V4``).
+physics version 4's ``mjx_envs.model.PHYSICS_V4``); ``v4_all_fingers`` is version 4 with every
+finger pair (also those of friction 1 or less: the bar's middle and caps, the pot's body) on the
+finger's mesh copy.
 `model(kind, scene)` builds one model; `patch(kind)` makes every model the package loads
 (trainer, evaluation, the parity measurement) carry the pads.
 """
@@ -38,7 +40,7 @@ CAPSULES = {
     "caps3": dict(r=0.006, xs=(-0.011, 0.0, 0.011), zc=0.035, half=0.032),
 }
 PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "meshneck_noccd",
-        "meshf_mjxbox", "meshneck_mjxbox")
+        "meshf_mjxbox", "meshneck_mjxbox", "v4_all_fingers")
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -164,6 +166,8 @@ def edit_for(kind: str):
             edit(spec)
             spec.add_numeric(name=model_lib.MJX_BOX_MESHES, data=[1.0])
         return mjxbox
+    if kind == "v4_all_fingers":   # version 4 with every finger pair on the mesh copy
+        return lambda spec, scene="scene_pickup.xml": model_lib._physics_v4(spec, scene, -1.0)
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
 
@@ -171,7 +175,10 @@ def model(kind: str, scene: str, timestep=None, cone=None) -> mujoco.MjModel:
     """The scene's model with pads of `kind`, the task's timestep and cone when given."""
     with model_lib.scene_path(scene) as path:
         spec = mujoco.MjSpec.from_file(str(path))
-        edit_for(kind)(spec)
+        if kind == "v4_all_fingers":
+            edit_for(kind)(spec, scene)
+        else:
+            edit_for(kind)(spec)
         m = spec.compile()
     if timestep is not None:
         m.opt.timestep = float(timestep)
