@@ -25,13 +25,14 @@ import pytest
 from daddpg_jax.cli import robot_client
 from daddpg_jax.deploy import NumpyPolicy, robot
 from daddpg_jax.deploy.arms import ArmsError, CallGuard, bounded, probe_rtde, safety_of_spec
-from daddpg_jax.deploy.gate import GatedArms, GateRefusal
+from daddpg_jax.deploy.gate import GatedArms, GateRefusal, step_cap
 from daddpg_jax.deploy.limits import SHIPPED, RobotLimits
 from daddpg_jax.deploy.policy import task_settings
 from daddpg_jax.deploy.robot_session import ENDS_RUN, outcome
 from daddpg_jax.deploy.safety import SafetyFilter
 from daddpg_jax.deploy.server import PolicyServer
 from daddpg_jax.deploy.ursim import SimRTDEControl, sim_env, sim_ur_env
+from mjx_envs import limit_rules
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from tests.reach_controller import write_reach_controller
 
@@ -115,15 +116,16 @@ def test_the_gate_refuses_each_rule_and_holds(policy):
     assert {"box", "step", "orientation", "clearance", "fingers"} <= set(gate.refusals)
 
 
-def test_the_filter_never_leaves_the_gate_a_target_to_refuse(policy):
-    """~1 s: the rules before the gate (clamp, then the speed cap, then the clearance rule with
-    capped fallbacks) under a full-speed policy with a tiny box and a low cap: the gate never
-    has to refuse."""
+@pytest.mark.parametrize("max_speed", [0.05, 0.02])
+def test_the_filter_never_leaves_the_gate_a_target_to_refuse(policy, max_speed):
+    """~1 s each: the rules before the gate (clamp, then the speed cap, then the clearance rule
+    with capped fallbacks) under a full-speed policy with a tiny box and a low cap (2 mm and
+    0.8 mm per period): the gate never has to refuse."""
     spec = _spec(policy)
     lim = RobotLimits.load(SIM)
     lim = dataclasses.replace(lim, workspace_low=((0.2, 0.0, 0.50), (0.2, -0.22, 0.50)),
                               workspace_high=((0.3, 0.22, 0.60), (0.3, 0.0, 0.60)),
-                              max_speed=0.05)
+                              max_speed=max_speed)
     safety = lim.safety_limits()
     env = sim_env(spec, _spec(policy), safety=safety)
     out = robot.run_episodes(env, _Client(policy, {k: [1.0, -1, 1, 1, -1, 1, -1, 0]
@@ -131,6 +133,27 @@ def test_the_filter_never_leaves_the_gate_a_target_to_refuse(policy):
                              SafetyFilter(safety), 1, deadline_s=10.0, ends_run=ENDS_RUN)
     assert out["aborted"] is None and env.arms.refusals == {}
     assert out["safety_counts"].get("workspace", 0) > 0 and out["safety_counts"]["speed"] > 0
+
+
+def test_capped_float32_moves_pass_the_step_rule_and_a_micrometre_more_does_not():
+    """~0.5 s: the speed cap's float32 targets (`mjx_envs.limit_rules.cap_speed`, as the client
+    and the trainer cap) at 0.8 mm, 2.5 mm (ur3_cell.toml at --speed-scale 0.25) and 10 mm per
+    period, from 20,000 random targets within 0.9 m: every capped step, measured in float64 as
+    the gate measures it, passes `step_cap`; before the coordinates' rounding was allowed for,
+    a third of the 0.8 mm ones did not. The allowance stays under a micrometre."""
+    rng = np.random.default_rng(0)
+    cur = rng.uniform(-0.9, 0.9, (20_000, 2, 3)).astype(np.float32)
+    prop = cur + rng.normal(size=cur.shape).astype(np.float32) * np.float32(0.02)
+    for max_step in (0.0008, 0.0025, 0.01):
+        rules = limit_rules.Limits(low=None, high=None, max_step=np.float32(max_step),
+                                   min_clearance=0.0, finger_low=0.0, finger_high=0.04)
+        t, capped = limit_rules.cap_speed(np, rules, cur, prop)
+        assert bool(capped)
+        step = np.linalg.norm(t.astype(np.float64) - cur.astype(np.float64), axis=-1)
+        assert step.max() <= step_cap(max_step)
+        old = max_step * (1.0 + 1e-5) + 1e-9     # the allowance before: length only
+        assert (step > old).any() or max_step > 0.005
+        assert max_step < step_cap(max_step) < max_step + 1e-6
 
 
 # -- targets outside the limits: nothing moves -------------------------------------------------
