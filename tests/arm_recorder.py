@@ -8,7 +8,8 @@ from ``daddpg_jax.deploy.safety``, ``gate`` or ``limits`` is used.
 
 Checked per command:
 - servo: the target inside the arm's box (1e-6 m), at most ``max_speed * speed_scale *
-  control_period`` from the arm's last commanded target (relative 1e-5), after a start move;
+  control_period`` from the arm's last commanded target (relative 1e-5, plus 0.25 µm for float32
+  coordinates, as the gate allows), after a start move;
 - move (the start move, moveL): its end inside the box, the measured start within 5 mm of the
   box, its speed at most ``max_speed * speed_scale``;
 - grip: a finite opening in ``[finger_min, finger_max]``.
@@ -119,7 +120,7 @@ class ArmRecorder:
         last = self.last.get((id(cell), arm))
         if last is None:
             self._bad(f"servo of arm {arm} before any start move")
-        elif np.linalg.norm(w - last) > e.cap * (1 + 1e-5) + 1e-9:
+        elif np.linalg.norm(w - last) > e.cap * (1 + 1e-5) + 2.5e-7:  # float32 coordinates
             self._bad(f"servo step {np.linalg.norm(w - last) * 1e3:.2f} mm > cap "
                       f"{e.cap * 1e3:.2f} mm (arm {arm})")
         self.last[(id(cell), arm)] = w
