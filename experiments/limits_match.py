@@ -133,6 +133,7 @@ def main(argv=None) -> int:
                            robot_client_success=rc["success_rate"],
                            robot_client_episodes_counted=rc.get("episodes"),
                            robot_client_interventions=rc.get("safety_counts"),
+                           gate_refusals=rc.get("gate_refusals"),
                            wall_s=round(time.time() - t0, 1))
                 row["difference"] = row["robot_client_success"] - row["evaluate_limits_success"]
                 if starts:
