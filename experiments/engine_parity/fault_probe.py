@@ -23,7 +23,6 @@ import numpy as np
 
 from daddpg_jax.algo import acting
 from daddpg_jax.analysis import evaluation
-from mjx_envs.physics import backends
 
 FIELDS = ("qpos", "qvel", "qacc", "qacc_warmstart", "qfrc_constraint", "efc_force", "efc_J",
           "efc_aref", "efc_D", "xpos", "xmat", "cinert", "qM")
@@ -127,7 +126,7 @@ def newton_trace(policy, data) -> list:
     Cholesky factor and the search direction are finite, and the Hessian's smallest eigenvalue
     (float64 of the float32 matrix)."""
     from mujoco.mjx._src import forward as mfwd
-    from mujoco.mjx._src import sensor, smooth, solver, support
+    from mujoco.mjx._src import sensor, solver, support
 
     m = policy.env.backend.model
     d = jax.tree.map(jnp.asarray, data)
@@ -163,7 +162,6 @@ def newton_trace(policy, data) -> list:
         if not rows[-1]["mgrad_finite"] or not rows[-1]["qacc_finite"]:
             break
         ctx = ctx.replace(search=-ctx.Mgrad, solver_niter=ctx.solver_niter + 1)
-    del smooth
     return rows
 
 
@@ -189,8 +187,6 @@ def main(argv=None) -> int:
                 newton_trace(policy, f["data"])
             return 0
     else:
-        if backends.default_chunk("mjx") is None:
-            print("note: an accelerator; chunks stay at --chunk", file=sys.stderr)
         faults, policy = collect(a.run, a.episodes, a.seed, a.chunk)
         if a.out:
             os.makedirs(a.out, exist_ok=True)
