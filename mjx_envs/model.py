@@ -15,8 +15,10 @@ which the C engine ignores), and pot's finger-handle contacts are softer (solimp
 the C engine, push and pick up act in versions 2 and 3 alike. See docs/MJX_VS_C.md.
 4 (opt-in, `mjx_envs.settings.LATEST_PHYSICS_VERSION`): the grasp pairs' fingers as box-shaped
 convex meshes, so that a tilted finger gives the same contact points on both engines
-(`PHYSICS_V4`). The scenes in assets/ are the current version; `load_model` builds the others
-from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`),
+(`PHYSICS_V4`). 5 (opt-in): version 4, and MJX collides a box with the table plane at every
+penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). The scenes in assets/
+are the current version; `load_model` builds the others from them (version 2: `PHYSICS_V2`;
+version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`),
 so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -62,6 +64,18 @@ convex collider (multiccd) where its box-box returns the deepest corner alone, M
 (docs/MJX_VS_C.md); and MJX's solver no longer stalls where float32 cancels a cone residual,
 which threw the bar in MJX's physics faults (the C engine ignores both numerics)."""
 
+MJX_PLANE_BOX_CORNERS = "mjx_plane_box_corners"
+"""Name of a scene's custom numeric: 1 = MJX collides a (plane, box) pair at each of the box's
+bottom corners that penetrates the plane, up to 4, as the C engine's ``mjc_PlaneBox`` does
+(`mjx_envs.physics.mjx_contacts`); without it MJX keeps only the corners within 1 mm of the
+deepest, so a box pressed into the table at a tilt rests on one or two points in MJX and on four
+in C. The C engine ignores it."""
+
+PHYSICS_V5 = dict(scenes=PHYSICS_V4["scenes"], numerics=(MJX_PLANE_BOX_CORNERS,))
+"""Physics version 5 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+version 4: the scenes named here also have the numerics named here. It changes MJX only: on the
+C engine version 5 acts as version 4 (docs/MJX_VS_C.md, "Physics version 5")."""
+
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -91,7 +105,10 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
     tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
-    the scenes `PHYSICS_V4` names, on both engines."""
+    the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX."""
+    if version == 5:
+        return (engine != "c" and registry.is_task(task)
+                and registry.get(task).config.scene in PHYSICS_V5["scenes"])
     if version == 4:
         return registry.is_task(task) and registry.get(task).config.scene in PHYSICS_V4["scenes"]
     if version == 3 and engine == "c":
@@ -160,7 +177,7 @@ def load_model(scene: str, timestep: float | None = None, cone: str | None = Non
             spec = mujoco.MjSpec.from_file(str(path))
             edit_spec(spec, scene, version)
             m = spec.compile()
-    if version == 4:
+    if version >= 4:
         check_box_meshes(m)
     if timestep is not None:
         m.opt.timestep = float(timestep)
@@ -184,8 +201,10 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v2(spec, scene)
     if version == 1:
         _physics_v1(spec, scene)
-    if version == 4:
+    if version >= 4:
         _physics_v4(spec, scene)
+    if version == 5:
+        _physics_v5(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -254,6 +273,13 @@ def _physics_v4(spec: mujoco.MjSpec, scene: str, grasp_friction: float | None = 
             setattr(pair, attr, name + "_mesh")
     spec.add_numeric(name=MJX_BOX_MESHES, data=[1.0])
     spec.add_numeric(name=MJX_FINITE_LINESEARCH, data=[1.0])
+
+
+def _physics_v5(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a version-4 spec (`_physics_v4`) into version 5 (`PHYSICS_V5`)."""
+    if scene in PHYSICS_V5["scenes"]:
+        for name in PHYSICS_V5["numerics"]:
+            spec.add_numeric(name=name, data=[1.0])
 
 
 def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:

@@ -28,6 +28,14 @@ returns one corner and MJX's convex-convex can return one point where the faces 
 `install` also routes MJX's (box, mesh) pairs to its box-box collider (with the wrapper above),
 the mesh as a box of its geom's size, for a model with the numeric `BOX_MESHES` = 1
 (`mjx_envs.model.check_box_meshes` holds for it); other models collide as before.
+
+MJX's plane-convex collision keeps only the vertices within 1 mm of the deepest one as its
+manifold. A bar pressed into the table at a tilt of a few millimetres over its length then rests
+on one or two points in MJX and on its four bottom corners in C (``mjc_PlaneBox``: every corner
+below the box's centre that penetrates, up to 4), and the two engines turn the same state into
+different motions (docs/MJX_VS_C.md, "Physics version 5"). For a model with the numeric
+`PLANE_BOX_CORNERS` = 1, `install` routes MJX's (plane, box) pairs to `plane_box_corners`, which
+keeps C's corners; other models collide as before.
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ import dataclasses
 import jax.numpy as jnp
 
 from mjx_envs.model import MJX_BOX_MESHES as BOX_MESHES
+from mjx_envs.model import MJX_PLANE_BOX_CORNERS as PLANE_BOX_CORNERS
 from mjx_envs.model import MJX_UNIQUE_CONTACTS as NUMERIC
 
 TOLERANCE = 1e-6
@@ -70,6 +79,46 @@ def _unique(collide):
 
     collide_unique.ncon = collide.ncon
     return collide_unique
+
+
+def plane_box_corners(plane, box):
+    """One (plane, box) pair's contacts as the C engine's ``mjc_PlaneBox`` makes them: the box's
+    corners below its centre (along the plane's normal) that penetrate the plane, up to 4, each
+    at the midpoint between the surfaces; MJX's ``plane_convex`` otherwise. ``plane``: MJX's
+    GeomInfo, ``box``: its ConvexInfo of the box (``mesh.box``). Returns (dist [4], pos [4, 3],
+    frame [4, 3, 3]); an unused slot has distance `NO_CONTACT`."""
+    # lazy: see `install`
+    from mujoco.mjx._src import math as mjx_math
+    from mujoco.mjx._src.collision_convex import _manifold_points
+
+    vert = box.vert
+    n_box = box.mat.T @ plane.mat[:, 2]                       # the plane's normal, box frame
+    depth = (box.mat.T @ (plane.pos - box.pos) - vert) @ n_box  # > 0: the corner penetrates
+    idx = _manifold_points(vert, (depth >= 0) & (vert @ n_box <= 0), n_box)
+    n = plane.mat[:, 2]
+    unique = jnp.tril(idx == idx[:, None]).sum(axis=1) == 1
+    chosen = (depth[idx] >= 0) & (vert[idx] @ n_box <= 0)
+    dist = jnp.where(unique & chosen, -depth[idx], NO_CONTACT)
+    pos = box.pos + vert[idx] @ box.mat.T - 0.5 * jnp.minimum(dist, 0.0)[:, None] * n
+    frame = jnp.stack([mjx_math.make_frame(n)] * 4, axis=0)
+    return dist, pos, frame
+
+
+def _plane_boxes(plane_box):
+    # lazy: see `install`
+    from mujoco.mjx._src import collision_driver
+    from mujoco.mjx._src.collision_convex import collider
+
+    corners = collider(ncon=plane_box.ncon)(plane_box_corners)
+
+    def collide_plane_box(m, d, key, geom):
+        if collision_driver._numeric(m, PLANE_BOX_CORNERS) == 1:  # a static field of the model
+            return corners(m, d, key, geom)
+        return plane_box(m, d, key, geom)
+
+    collide_plane_box.ncon = plane_box.ncon
+    collide_plane_box.keeps_box_corners = True
+    return collide_plane_box
 
 
 def _box_meshes(box_mesh):
@@ -107,3 +156,7 @@ def install() -> None:
     if not getattr(box_mesh, "routes_box_meshes", False):
         assert box_mesh.ncon == box_box.ncon, "MJX's box-mesh and box-box manifold sizes differ"
         table[(GeomType.BOX, GeomType.MESH)] = _box_meshes(box_mesh)
+    plane_box = table[(GeomType.PLANE, GeomType.BOX)]
+    if not getattr(plane_box, "keeps_box_corners", False):
+        assert plane_box.ncon == 4, "MJX's plane-box manifold is no longer 4 points"
+        table[(GeomType.PLANE, GeomType.BOX)] = _plane_boxes(plane_box)
