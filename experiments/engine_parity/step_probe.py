@@ -2,13 +2,16 @@
 loop; at every control step, MJX's state before the step (qpos, qvel, act, warm start) and the
 ctrl/mocap it applied are set into the C engine's data, the C engine takes the same control
 step, and the object's position and velocity after it are compared with MJX's. Per control
-step: the median and largest one-step difference; for the worst states, each engine's contacts.
+step: the median and largest one-step difference; for the worst states, each engine's contacts
+after the step; per contact pair, how often the engines' point counts differ at the very same
+positions (every state before a control step).
 A one-step difference that stays at rounding size while whole episodes part (open_loop.py) means
 the engines amplify small differences; a large one at some step means they resolve that
 step's contacts differently.
 
     python experiments/engine_parity/step_probe.py RUN --episodes 32 --seed 9090 [--steps 12] \
-        [--json OUT.json] [--no-warmstart] [--c-edit cold|converged|cg] [--physics-version N]
+        [--json OUT.json] [--no-warmstart] [--c-edit cold|converged|cg] [--physics-version N] \
+        [--pads KIND]
 
 Run it alone on a CPU (MJX, one chunk of at most 32)."""
 
@@ -17,14 +20,20 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import os
+from collections import Counter
 import sys
 
-import jax
-import mujoco
-import numpy as np
+if __package__ in (None, ""):  # run as a file: the repository root holds `experiments`
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
-from daddpg_jax.algo import acting
-from daddpg_jax.analysis import evaluation
+import jax  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from daddpg_jax.algo import acting  # noqa: E402
+from daddpg_jax.analysis import evaluation  # noqa: E402
+from experiments.engine_parity import pads  # noqa: E402
 
 
 def _record(s, a, s2):
@@ -84,6 +93,45 @@ def _mjx_contacts(m, rec, t, i):
             for x, g in zip(dist, rec["cgeom"][t, i]) if x < 0]
 
 
+def pair_counts(env, m, rec) -> dict:
+    """Per contact pair, over every recorded state before a control step (MJX's, set into both
+    engines: the same positions): the states where either engine has a contact, those where the
+    engines' point counts differ, and the mean count on each."""
+    be = env.backend                      # the MJX backend of the run's env
+    mjx = be._mjx
+
+    def forward(q):
+        c = mjx.forward(be.model, be._data0.replace(qpos=q))._impl.contact
+        return c.dist, c.geom
+
+    q = rec["qpos"].reshape((-1,) + rec["qpos"].shape[2:]).astype(np.float32)
+    dist, geom = (np.asarray(x) for x in jax.jit(jax.vmap(forward))(q))
+    d = mujoco.MjData(m)
+    name = lambda g: m.geom(int(g)).name  # noqa: E731
+    table: dict = {}
+    for k in range(len(q)):
+        d.qpos[:] = q[k]
+        mujoco.mj_forward(m, d)
+        c_n = Counter((name(c.geom1), name(c.geom2)) for c in d.contact[:d.ncon])
+        m_n = Counter((name(g[0]), name(g[1])) for x, g in zip(dist[k], geom[k]) if x < 0)
+        for pair in set(c_n) | set(m_n):
+            row = table.setdefault("-".join(pair), dict(states=0, differ=0, c=0, mjx=0))
+            row["states"] += 1
+            row["differ"] += c_n[pair] != m_n[pair]
+            row["c"] += c_n[pair]
+            row["mjx"] += m_n[pair]
+    for row in table.values():
+        row["c"], row["mjx"] = (round(row[k] / row["states"], 2) for k in ("c", "mjx"))
+    return dict(sorted(table.items(), key=lambda kv: -kv[1]["differ"]))
+
+
+def compact(rows: list, worst: list) -> list:
+    """``rows`` with the contact lists kept only in the ``worst`` ones (the JSON's size)."""
+    keep = {(r["t"], r["episode"]) for r in worst}
+    return [r if (r["t"], r["episode"]) in keep
+            else {k: v for k, v in r.items() if not k.endswith("_contacts")} for r in rows]
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("run")
@@ -96,10 +144,14 @@ def main(argv=None) -> int:
                    help="start the C engine's solver cold instead of from MJX's warm start")
     p.add_argument("--physics-version", type=int, default=None,
                    help="simulate this physics version instead of the run's")
+    p.add_argument("--pads", default=None,
+                   help="a pad kind of pads.py on both engines (probes only)")
     p.add_argument("--c-edit", choices=sorted(C_EDITS), default=None,
                    help="the C engine's solver options changed as named (C_EDITS)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    if a.pads:
+        pads.patch(a.pads)
     pol = evaluation.load_policy(a.run, step=a.step, best=a.step is None, physics="mjx",
                                  physics_version=a.physics_version)
     env, act = pol.env, pol.act
@@ -133,6 +185,12 @@ def main(argv=None) -> int:
                              dvel_mm_s_max=float(dv.max()),
                              touching=int(sum(bool(x["c_contacts"]) for x in r))))
         print(json.dumps(per_step[-1]), flush=True)
+    counts = pair_counts(env, m, rec)
+    print("contact points per pair at the same positions (states: either touches; differ: "
+          "the counts differ; mean points C / MJX):")
+    for pair, row in counts.items():
+        print(f"  {pair:32s} states {row['states']:4d} differ {row['differ']:4d} "
+              f"C {row['c']:.2f} MJX {row['mjx']:.2f}")
     worst = sorted(rows, key=lambda x: -x["dvel_mm_s"])[:a.worst]
     for x in worst:
         print(f"t={x['t']} ep={x['episode']} dpos {x['dpos_mm']:.3f} mm dvel "
@@ -142,8 +200,9 @@ def main(argv=None) -> int:
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(dict(run=a.run, step=a.step, seed=a.seed, warmstart=not a.no_warmstart,
-                           c_edit=a.c_edit, physics_version=a.physics_version,
-                           per_step=per_step, rows=rows), fh, indent=1)
+                           c_edit=a.c_edit, physics_version=a.physics_version, pads=a.pads,
+                           per_step=per_step, pair_counts=counts,
+                           rows=compact(rows, worst)), fh, indent=1)
     return 0
 
 
