@@ -21,8 +21,8 @@ import argparse
 import copy
 import json
 import os
-from collections import Counter
 import sys
+from collections import Counter
 
 if __package__ in (None, ""):  # run as a file: the repository root holds `experiments`
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
