@@ -3,8 +3,8 @@ change of the grasp pairs or solver options at a time, or with finger pads (pads
 episodes of seed 2024; with both engines, the paired outcomes and the Newcombe 95% interval of
 the difference.
 
-    python experiments/engine_parity/eval_probe.py RUN OUT.json [--pads KIND] [--engines c]
-        [--episodes N] [CANDIDATE ...]
+    python experiments/engine_parity/eval_probe.py [--pads KIND] [--engines c] [--episodes N] \
+        [--seed S] [--step N] RUN OUT.json [CANDIDATE ...]
 
 OUT.json gets one entry per candidate (merged into an existing file). Recorded outputs:
 docs/results/engines/pickup_mjx_v2_s0/c_engine_probe.json (--engines c, the neck_* and solver
@@ -48,12 +48,20 @@ def _more_iterations(m):
     m.opt.ls_iterations *= 4
 
 
+def _cold_start(m):
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_WARMSTART)
+
+
 CANDIDATES = {
     "nominal": None,
     # solver options
     "iterations_x4": _more_iterations,
     "pyramidal": pt.options(cone=mujoco.mjtCone.mjCONE_PYRAMIDAL),
     "cg_solver": pt.options(solver=mujoco.mjtSolver.mjSOL_CG),
+    "cold_start": _cold_start,   # no warm start (a C-engine Newton stop: MJX_VS_C.md, version 5)
+    "converged": pt.options(tolerance=0.0, iterations=100, ls_iterations=50),
+    "tol0_it30": pt.options(tolerance=0.0, iterations=30, ls_iterations=30),
+    "ls_it50": pt.options(ls_iterations=50),
     "impratio_5": pt.options(impratio=5.0),
     "impratio_10": pt.options(impratio=10.0),
     "impratio_5_solimp_soft": pt.chain(pt.options(impratio=5.0), _grasp(**SOFT)),
@@ -78,6 +86,7 @@ def main(argv=None) -> int:
     p.add_argument("--engines", default="c,mjx")
     p.add_argument("--episodes", type=int, default=320)
     p.add_argument("--seed", type=int, default=2024)
+    p.add_argument("--step", type=int, default=None, help="this checkpoint instead of the best")
     args = p.parse_args(argv)
     if any(c not in CANDIDATES for c in args.candidates):
         p.error("unknown candidate; one of " + ", ".join(CANDIDATES))
@@ -87,7 +96,7 @@ def main(argv=None) -> int:
     out = json.load(open(args.out)) if os.path.exists(args.out) else {}
     for name in args.candidates or ["nominal"]:
         res = pt.evaluate_engines(args.run, CANDIDATES[name], engines, args.episodes, args.seed,
-                                  label=name)
+                                  label=name, step=args.step)
         out[name] = pt.paired(res)
         print(name, out[name], flush=True)
         with open(args.out, "w") as f:

@@ -102,16 +102,16 @@ def down_force(m, task: str, load: float) -> tuple[int, np.ndarray]:
 
 
 def evaluate_engines(run: str, edit=None, engines=("c", "mjx"), episodes=320, seed=2024,
-                     label="") -> dict:
-    """{engine: success per episode} of RUN's best checkpoint with `edit` applied to each
-    engine's model (MJX: the edited model is put again)."""
+                     label="", step: int | None = None) -> dict:
+    """{engine: success per episode} of RUN's best checkpoint (or checkpoint `step`) with `edit`
+    applied to each engine's model (MJX: the edited model is put again)."""
     from daddpg_jax.analysis import evaluation
     from mjx_envs.physics.backends import import_mjx
 
     res = {}
     for eng in engines:
         t0 = time.time()
-        pol = evaluation.load_policy(run, best=True, physics=eng)
+        pol = evaluation.load_policy(run, step=step, best=step is None, physics=eng)
         if edit is not None:
             edit(pol.env.mj_model)
             if eng == "mjx":
