@@ -10,7 +10,7 @@ the engines amplify small differences; a large one at some step means they resol
 step's contacts differently.
 
     python experiments/engine_parity/step_probe.py RUN --episodes 32 --seed 9090 [--steps 12] \
-        [--json OUT.json] [--no-warmstart] [--c-edit cold|converged|cg] [--physics-version N] \
+        [--json OUT.json] [--no-warmstart] [--c-edit CANDIDATE] [--physics-version N] \
         [--pads KIND]
 
 Run it alone on a CPU (MJX, one chunk of at most 32)."""
@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 
 from daddpg_jax.algo import acting  # noqa: E402
 from daddpg_jax.analysis import evaluation  # noqa: E402
-from experiments.engine_parity import pads  # noqa: E402
+from experiments.engine_parity import eval_probe, pads  # noqa: E402
 
 
 def _record(s, a, s2):
@@ -44,19 +44,11 @@ def _record(s, a, s2):
                 cdist=c.dist, cgeom=c.geom, cpos=c.pos, cframe=c.frame[..., 0, :])
 
 
-C_EDITS = {
-    "cold": dict(disableflags=int(mujoco.mjtDisableBit.mjDSBL_WARMSTART)),
-    "converged": dict(tolerance=0.0, iterations=100, ls_iterations=50),
-    "cg": dict(solver=int(mujoco.mjtSolver.mjSOL_CG), iterations=100),
-}
-"""C engine solver options tried against a Newton solve that stops early: no warm start, a
-solve run to its iteration limit, and the conjugate-gradient solver"""
-
-
 def _edit(m: mujoco.MjModel, edit: str | None) -> mujoco.MjModel:
+    """A copy of ``m`` with eval_probe.py's candidate ``edit`` (None: unchanged)."""
     m = copy.copy(m)
-    for k, v in C_EDITS.get(edit, {}).items():
-        setattr(m.opt, k, getattr(m.opt, k) | v if k == "disableflags" else v)
+    if edit is not None:
+        eval_probe.CANDIDATES[edit](m)
     return m
 
 
@@ -146,8 +138,8 @@ def main(argv=None) -> int:
                    help="simulate this physics version instead of the run's")
     p.add_argument("--pads", default=None,
                    help="a pad kind of pads.py on both engines (probes only)")
-    p.add_argument("--c-edit", choices=sorted(C_EDITS), default=None,
-                   help="the C engine's solver options changed as named (C_EDITS)")
+    p.add_argument("--c-edit", choices=sorted(k for k, v in eval_probe.CANDIDATES.items() if v),
+                   default=None, help="the C engine's model changed as eval_probe.py's candidate")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     if a.pads:

@@ -84,7 +84,7 @@ def _unique(collide):
 def plane_box_corners(plane, box):
     """One (plane, box) pair's contacts as the C engine's ``mjc_PlaneBox`` makes them: the box's
     corners below its centre (along the plane's normal) that penetrate the plane, up to 4, each
-    at the midpoint between the surfaces; MJX's ``plane_convex`` otherwise. ``plane``: MJX's
+    at the midpoint between the surfaces, chosen by MJX's own 4-point manifold. ``plane``: MJX's
     GeomInfo, ``box``: its ConvexInfo of the box (``mesh.box``). Returns (dist [4], pos [4, 3],
     frame [4, 3, 3]); an unused slot has distance `NO_CONTACT`."""
     # lazy: see `install`
@@ -94,11 +94,11 @@ def plane_box_corners(plane, box):
     vert = box.vert
     n_box = box.mat.T @ plane.mat[:, 2]                       # the plane's normal, box frame
     depth = (box.mat.T @ (plane.pos - box.pos) - vert) @ n_box  # > 0: the corner penetrates
-    idx = _manifold_points(vert, (depth >= 0) & (vert @ n_box <= 0), n_box)
+    corner = (depth >= 0) & (vert @ n_box <= 0)               # C's corners
+    idx = _manifold_points(vert, corner, n_box)
     n = plane.mat[:, 2]
     unique = jnp.tril(idx == idx[:, None]).sum(axis=1) == 1
-    chosen = (depth[idx] >= 0) & (vert[idx] @ n_box <= 0)
-    dist = jnp.where(unique & chosen, -depth[idx], NO_CONTACT)
+    dist = jnp.where(unique & corner[idx], -depth[idx], NO_CONTACT)
     pos = box.pos + vert[idx] @ box.mat.T - 0.5 * jnp.minimum(dist, 0.0)[:, None] * n
     frame = jnp.stack([mjx_math.make_frame(n)] * 4, axis=0)
     return dist, pos, frame
