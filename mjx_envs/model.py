@@ -16,9 +16,11 @@ the C engine, push and pick up act in versions 2 and 3 alike. See docs/MJX_VS_C.
 4 (opt-in, `mjx_envs.settings.LATEST_PHYSICS_VERSION`): the grasp pairs' fingers as box-shaped
 convex meshes, so that a tilted finger gives the same contact points on both engines
 (`PHYSICS_V4`). 5 (opt-in): version 4, and MJX collides a box with the table plane at every
-penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). The scenes in assets/
-are the current version; `load_model` builds the others from them (version 2: `PHYSICS_V2`;
-version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`),
+penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). 6 (opt-in): version 5,
+and the C engine's Newton line search runs up to 50 iterations where MJX keeps the scene's
+(`PHYSICS_V6`; C engine only). The scenes in assets/ are the current version; `load_model`
+builds the others from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version
+4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`),
 so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -26,6 +28,7 @@ says when it does not).
 from __future__ import annotations
 
 import contextlib
+import copy
 import importlib.resources
 from collections.abc import Iterator
 from pathlib import Path
@@ -76,6 +79,18 @@ PHYSICS_V5 = dict(scenes=PHYSICS_V4["scenes"], numerics=(MJX_PLANE_BOX_CORNERS,)
 version 4: the scenes named here also have the numerics named here. It changes MJX only: on the
 C engine version 5 acts as version 4 (docs/MJX_VS_C.md, "Physics version 5")."""
 
+MJX_LS_ITERATIONS = "mjx_ls_iterations"
+"""Name of a scene's custom numeric: the line-search iterations MJX's solver takes, where the
+model's own ``opt.ls_iterations`` (which the C engine takes) differs (`mjx_model`)."""
+
+PHYSICS_V6 = dict(scenes=PHYSICS_V4["scenes"], c_ls_iterations=50)
+"""Physics version 6 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+version 5: in the scenes named here the model's ``opt.ls_iterations`` (the C engine's Newton line
+search) is ``c_ls_iterations``, and the numeric `MJX_LS_ITERATIONS` keeps MJX at the scene's own
+value. The scenes' 15 let the C engine's Newton solver stop early where two fingers press the
+object into the table, and the integrator then throws the object (docs/MJX_VS_C.md, "Physics
+version 6"). It changes the C engine only: on MJX version 6 acts as version 5."""
+
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -105,7 +120,11 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     """Whether physics `version` changed how `task` acts on `engine` ("c", "mjx"; None: either):
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
     tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
-    the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX."""
+    the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
+    version 6 those of `PHYSICS_V6`, on the C engine."""
+    if version == 6:
+        return (engine != "mjx" and registry.is_task(task)
+                and registry.get(task).config.scene in PHYSICS_V6["scenes"])
     if version == 5:
         return (engine != "c" and registry.is_task(task)
                 and registry.get(task).config.scene in PHYSICS_V5["scenes"])
@@ -203,8 +222,10 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v1(spec, scene)
     if version >= 4:
         _physics_v4(spec, scene)
-    if version == 5:
+    if version >= 5:
         _physics_v5(spec, scene)
+    if version >= 6:
+        _physics_v6(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -280,6 +301,24 @@ def _physics_v5(spec: mujoco.MjSpec, scene: str) -> None:
     if scene in PHYSICS_V5["scenes"]:
         for name in PHYSICS_V5["numerics"]:
             spec.add_numeric(name=name, data=[1.0])
+
+
+def _physics_v6(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a version-5 spec (`_physics_v5`) into version 6 (`PHYSICS_V6`)."""
+    if scene in PHYSICS_V6["scenes"]:
+        spec.add_numeric(name=MJX_LS_ITERATIONS, data=[float(spec.option.ls_iterations)])
+        spec.option.ls_iterations = int(PHYSICS_V6["c_ls_iterations"])
+
+
+def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:
+    """The model MJX simulates for ``m`` (the C engine simulates ``m`` itself): ``m``, or where
+    ``m`` has the numeric `MJX_LS_ITERATIONS`, a copy with that many line-search iterations."""
+    for i in range(m.nnumeric):
+        if m.numeric(i).name == MJX_LS_ITERATIONS:
+            out = copy.copy(m)
+            out.opt.ls_iterations = int(round(float(m.numeric(i).data[0])))
+            return out
+    return m
 
 
 def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:

@@ -18,12 +18,16 @@ from mjx_envs import registry, settings
 from mjx_envs.model import (
     MJX_BOX_MESHES,
     MJX_FINITE_LINESEARCH,
+    MJX_LS_ITERATIONS,
     MJX_UNIQUE_CONTACTS,
     PHYSICS_V1,
     PHYSICS_V4,
+    PHYSICS_V6,
     check_box_meshes,
     load_model,
+    mjx_model,
     physics_changed,
+    physics_version_note,
 )
 from mjx_envs.numpy_env import NumpyDualArmEnv
 from mjx_envs.schema import ConfigError
@@ -138,6 +142,53 @@ def test_an_unknown_version_is_refused(capsys):
         assert evaluate_cli.main(["no_such_run", "--physics-version", str(bad)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--physics-version must be in" in err
+
+
+def _options(m) -> dict:
+    return {k: np.copy(getattr(m.opt, k)) for k in dir(m.opt)
+            if not k.startswith("_") and not callable(getattr(m.opt, k))}
+
+
+@pytest.mark.parametrize("task", ["pickup", "pot", "push"])
+def test_version_6_lengthens_the_c_engine_s_line_search_only(task):
+    """Version 6 (opt-in): in pick up's and pot's scenes the model (what the C engine, the
+    NumPy simulator and the JAX env's C backend simulate) has 50 line-search iterations, and
+    the model MJX simulates (`mjx_model`, which `MjxBackend` puts) is version 5's in every array
+    and option; push is version 5 exactly (~2 s, MJX imported, nothing compiled)."""
+    from mjx_envs.physics import backends
+
+    cfg = registry.task_config(task, physics_version=6)
+    v5, v6 = load_model(cfg.scene, physics_version=5), load_model(cfg.scene, physics_version=6)
+    a5 = _arrays(v5)
+    mj = mjx_model(v6)
+    if cfg.scene not in PHYSICS_V6["scenes"]:
+        assert mj is v6
+        for k, value in _options(v6).items():
+            np.testing.assert_array_equal(_options(v5)[k], value, err_msg=k)
+        for name, value in _arrays(v6).items():
+            np.testing.assert_array_equal(a5[name], value, err_msg=name)
+        assert not physics_changed(6, task)
+        return
+    assert v5.opt.ls_iterations == 15 and v6.opt.ls_iterations == PHYSICS_V6["c_ls_iterations"]
+    assert v6.numeric(MJX_LS_ITERATIONS).data.tolist() == [15.0]
+    assert mj is not v6 and v6.opt.ls_iterations == 50   # a copy: v6 itself unchanged
+    o5, o6 = _options(v5), _options(mj)
+    assert o5.keys() == o6.keys()
+    for k in o5:
+        np.testing.assert_array_equal(o5[k], o6[k], err_msg=k)
+    for name, value in _arrays(mj).items():
+        if not name.startswith(("numeric", "name_numericadr", "names", "name_")):
+            np.testing.assert_array_equal(a5[name], value, err_msg=name)
+    assert physics_changed(6, task, "c") and not physics_changed(6, task, "mjx")
+    assert physics_version_note(5, task, simulated=6, engine="mjx") is None
+    assert physics_version_note(5, task, simulated=6, engine="c") is not None
+    # every engine's entry point
+    env = mjx_envs.make(task, physics="c", physics_version=6)
+    sim = NumpyDualArmEnv(cfg, task=task)
+    assert env.mj_model.opt.ls_iterations == sim.model.opt.ls_iterations == 50
+    mjx_backend = backends.MjxBackend(v6, cfg.n_substeps)
+    assert int(mjx_backend.model.opt.ls_iterations) == 15
+    assert backends.CBackend(v6, cfg.n_substeps, nthread=1).mj_model.opt.ls_iterations == 50
 
 
 def _corners(m, g) -> np.ndarray:

@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 
 from experiments.engine_parity import parity as ep
+from mjx_envs import model as model_lib
 from mjx_envs import registry
 
 GRASP = ("pot_handle", "neck")
@@ -116,7 +117,7 @@ def evaluate_engines(run: str, edit=None, engines=("c", "mjx"), episodes=320, se
             edit(pol.env.mj_model)
             if eng == "mjx":
                 mjx = import_mjx()
-                pol.env.backend.model = mjx.put_model(pol.env.mj_model)
+                pol.env.backend.model = mjx.put_model(model_lib.mjx_model(pol.env.mj_model))
                 pol.env.backend._data0 = mjx.make_data(pol.env.backend.model)
         _, tr = evaluation.evaluate(pol, episodes=episodes, seed=seed)
         res[eng] = tr["success"].astype(bool)

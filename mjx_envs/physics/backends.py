@@ -55,6 +55,7 @@ from flax import struct
 from mujoco import rollout
 
 from mjx_envs import randomize, settings
+from mjx_envs.model import mjx_model
 from mjx_envs.physics import mjx_contacts, mjx_solver
 
 
@@ -112,7 +113,7 @@ class MjxBackend:
         self._mjx = mjx
         self.mj_model = model
         self.n_substeps = int(n_substeps)
-        self.model = mjx.put_model(model)
+        self.model = mjx.put_model(mjx_model(model))   # MJX's own solver options (version 6)
         self._data0 = mjx.make_data(self.model)
         self.rand = rand
 
