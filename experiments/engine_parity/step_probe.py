@@ -11,7 +11,10 @@ step's contacts differently.
 
     python experiments/engine_parity/step_probe.py RUN --episodes 32 --seed 9090 [--steps 12] \
         [--json OUT.json] [--no-warmstart] [--c-edit CANDIDATE] [--physics-version N] \
-        [--pads KIND]
+        [--pads KIND] [--save-states OUT.npz]
+
+``--save-states``: the worst states (MJX's state before the step, its ctrl/mocap, and its
+object after the step) to an .npz, the record a test replays (tests/data/c_newton_stop_*.npz).
 
 Run it alone on a CPU (MJX, one chunk of at most 32)."""
 
@@ -141,6 +144,7 @@ def main(argv=None) -> int:
     p.add_argument("--c-edit", choices=sorted(k for k, v in eval_probe.CANDIDATES.items() if v),
                    default=None, help="the C engine's model changed as eval_probe.py's candidate")
     p.add_argument("--json", default=None)
+    p.add_argument("--save-states", default=None, help="the worst states to this .npz")
     a = p.parse_args(argv)
     if a.pads:
         pads.patch(a.pads)
@@ -189,6 +193,16 @@ def main(argv=None) -> int:
               f"{x['dvel_mm_s']:.1f} mm/s dang {x['dang_rad_s']:.3f} rad/s")
         print("  C:  ", x["c_contacts"])
         print("  MJX:", x["mjx_contacts"])
+    if a.save_states:
+        idx = [(x["t"], x["episode"]) for x in worst]
+        np.savez_compressed(
+            a.save_states, task=getattr(env, "task_name", ""),
+            physics_version=int(env.config.physics_version), n_substeps=env.backend.n_substeps,
+            t=np.array([t for t, _ in idx]), episode=np.array([i for _, i in idx]),
+            dvel_mm_s=np.array([x["dvel_mm_s"] for x in worst]),
+            qa=qa, va=va, warmstart=not a.no_warmstart,
+            **{k: np.stack([rec[k][t, i] for t, i in idx])
+               for k in ("qpos", "qvel", "act", "warm", "ctrl", "mocap", "qpos2", "qvel2")})
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(dict(run=a.run, step=a.step, seed=a.seed, warmstart=not a.no_warmstart,
