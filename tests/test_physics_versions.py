@@ -266,3 +266,45 @@ def test_version_4_gives_both_engines_the_same_contact_points():
     assert max(diff) < 0.02 and np.mean(diff) < 0.005, diff
     boxes = ms.c_points(ms.model("boxbox"), poses)
     assert sum(len(a) < len(b) for a, b in zip(boxes, mjx, strict=True)) >= 5
+
+
+NEWTON_STOP = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data",
+                           "c_newton_stop_pot.npz")
+"""Six states of an MJX-trained pot policy (physics version 6, seed 0's best checkpoint) played
+on MJX in version 5, those where the C engine's control step from MJX's very state parted most
+from MJX's (`experiments/engine_parity/step_probe.py RUN --episodes 32 --steps 40
+--physics-version 5 --worst 6 --save-states ...`): MJX's state before the step (warm start
+included), the control it applied and its object velocity after the step"""
+
+
+def _object_velocity(m: mujoco.MjModel, s: dict, k: int) -> np.ndarray:
+    """The object's linear velocity after one control step of the C engine from state ``k``."""
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = s["qpos"][k], s["qvel"][k]
+    if m.na:
+        d.act[:] = s["act"][k]
+    d.qacc_warmstart[:], d.ctrl[:], d.mocap_pos[:] = s["warm"][k], s["ctrl"][k], s["mocap"][k]
+    for _ in range(int(s["n_substeps"])):
+        mujoco.mj_step(m, d)
+    va = int(s["va"])
+    return d.qvel[va:va + 3].copy()
+
+
+def test_version_6_keeps_the_c_engine_from_throwing_the_pot_where_version_5_stops_early():
+    """From each recorded state the C engine in version 5 (line search of 15) stops its Newton
+    solver early and throws the pot: 1.1-2.5 m/s away from MJX's velocity after the step. In
+    version 6 (50) it lands within 0.03 m/s of MJX's and within 1 mm/s of the C engine run to
+    convergence (tolerance 0, 100 / 50 iterations) (~0.3 s, C engine only)."""
+    s = dict(np.load(NEWTON_STOP))
+    assert str(s["task"]) == "pot" and int(s["physics_version"]) == 5
+    cfg = registry.default_config("pot")
+    v5, v6 = (load_model(cfg.scene, cfg.timestep, cfg.cone, physics_version=v) for v in (5, 6))
+    converged = load_model(cfg.scene, cfg.timestep, cfg.cone, physics_version=5)
+    converged.opt.tolerance, converged.opt.iterations, converged.opt.ls_iterations = 0.0, 100, 50
+    va = int(s["va"])
+    for k in range(len(s["t"])):
+        mjx_v = s["qvel2"][k][va:va + 3]
+        v5_v, v6_v = _object_velocity(v5, s, k), _object_velocity(v6, s, k)
+        assert np.linalg.norm(v5_v - mjx_v) > 1.0, k
+        assert np.linalg.norm(v6_v - mjx_v) < 0.03, k
+        np.testing.assert_allclose(v6_v, _object_velocity(converged, s, k), atol=1e-3)
