@@ -62,6 +62,7 @@ CANDIDATES = {
     "converged": pt.options(tolerance=0.0, iterations=100, ls_iterations=50),
     "tol0_it30": pt.options(tolerance=0.0, iterations=30, ls_iterations=30),
     "ls_it50": pt.options(ls_iterations=50),
+    "mjx_ls_it50": pt.mjx_ls_iterations(50),   # versions 6+: MJX's line search as the C engine's
     "impratio_5": pt.options(impratio=5.0),
     "impratio_10": pt.options(impratio=10.0),
     "impratio_5_solimp_soft": pt.chain(pt.options(impratio=5.0), _grasp(**SOFT)),

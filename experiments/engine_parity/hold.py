@@ -6,7 +6,8 @@ the fraction of states where it fell > 20 mm and the mean absolute difference of
     python experiments/engine_parity/hold.py TASK OUT.json CAND [CAND ...]
 
 Environment: LOADS (comma list, default 0,3,8), UNIQ=1 (MJX with the unique-points prototype,
-unique_points.py), JAX_ENABLE_X64=1 (float64 MJX). Candidates: model edits of the grasp pairs
+unique_points.py), JAX_ENABLE_X64=1 (float64 MJX), PHYSICS_VERSION (the scenes' version, default the current one;
+MJX simulates ``mjx_envs.model.mjx_model`` of each model, as the env does). Candidates: model edits of the grasp pairs
 and solver options, or finger pads (pads.py; ``meshf_mjxbox`` / ``meshneck_mjxbox``: box-shaped
 meshes that MJX collides as boxes, mjx_envs/physics/mjx_contacts.py). Outputs:
 docs/results/engines/grasp_hold/hold_*.json, docs/results/engines/unique_points/h_*.json and
@@ -32,6 +33,7 @@ import numpy as np  # noqa: E402
 import mjx_envs  # noqa: E402
 from experiments.engine_parity import pads  # noqa: E402
 from experiments.engine_parity import probe_tools as pt  # noqa: E402
+from mjx_envs import model as model_lib  # noqa: E402
 from mjx_envs.physics import backends  # noqa: E402
 
 T, N, CH = 20, 64, 32   # control steps held, states, MJX batch
@@ -49,6 +51,7 @@ CANDIDATES = {
     "condim6": pt.pair_dim(6),
     "iters50": pt.options(iterations=50, ls_iterations=50, tolerance=1e-10),
     "iters4": pt.options(iterations=4, ls_iterations=4),
+    "mjx_ls50": pt.mjx_ls_iterations(50),   # versions 6+: MJX's line search as the C engine's
     "pyramidal": pt.options(cone=0),
     "pyr_imp5": pt.options(cone=0, impratio=5.0),
     "pyr_fric3": pt.chain(pt.options(cone=0), pt.pair_fields(friction=(3.0, 3.0))),
@@ -81,7 +84,7 @@ def drops_c(m, st, body, f, steps) -> np.ndarray:
 
 def drops_mjx(m, st, body, f, steps) -> np.ndarray:
     mjx = backends.import_mjx()
-    mm = mjx.put_model(m)
+    mm = mjx.put_model(model_lib.mjx_model(m))
     d0 = mjx.make_data(mm)
 
     @jax.jit
@@ -105,10 +108,12 @@ def main(argv=None) -> int:
         return 2
     task, out_path = argv[0], argv[1]
     loads = tuple(float(x) for x in os.environ.get("LOADS", "0,3,8").split(","))
-    env = mjx_envs.make(task, physics="c")
+    version = os.environ.get("PHYSICS_VERSION")
+    overrides = {} if version is None else dict(physics_version=int(version))
+    env = mjx_envs.make(task, physics="c", **overrides)
     steps = T * env.config.n_substeps
     st = pt.sample_states(task, N, dtype=np.float64 if os.environ.get("JAX_ENABLE_X64")
-                          else np.float32)
+                          else np.float32, **overrides)
     out = json.load(open(out_path)) if os.path.exists(out_path) else {}
     backends.import_mjx()   # also routes box-shaped meshes for models with the numeric (*_mjxbox)
     if os.environ.get("UNIQ"):

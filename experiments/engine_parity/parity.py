@@ -320,11 +320,11 @@ def measure(task: str, cand: Candidate, episodes: int = 32, engines=("c", "mjx")
 
 # -- one forward pass at identical states (collision functions, solver) -----------------------
 
-def grasp_states(task: str, episodes: int = 8, seed: int = 0) -> dict:
-    """States of the scripted controller's episodes on the unchanged C engine where both
-    grippers hold the object (`scripted.holding`): qpos, qvel, and the targets and finger servo
-    targets of the next control step, float32 [N, ...]."""
-    env = mjx_envs.make(task, physics="c")
+def grasp_states(task: str, episodes: int = 8, seed: int = 0, **overrides) -> dict:
+    """States of the scripted controller's episodes on the unchanged C engine (the env's config
+    `overrides`) where both grippers hold the object (`scripted.holding`): qpos, qvel, and the
+    targets and finger servo targets of the next control step, float32 [N, ...]."""
+    env = mjx_envs.make(task, physics="c", **overrides)
     obs, acts, phys, _ = Runner(env, env).run(jax.random.split(jax.random.PRNGKey(seed),
                                                                episodes), full=True)
     hold = np.asarray(scripted.holding(jax.tree.map(jnp.asarray, obs))).all(-1)[:-1]

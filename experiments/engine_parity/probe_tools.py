@@ -63,6 +63,20 @@ def options(**opts):
     return edit
 
 
+def mjx_ls_iterations(n: int):
+    """Edit: MJX's Newton line search runs up to `n` iterations (the numeric
+    ``mjx_envs.model.MJX_LS_ITERATIONS`` of versions 6 and later, which ``mjx_model`` reads);
+    the C engine keeps the model's own ``opt.ls_iterations``. ValueError on an older model."""
+    def edit(m):
+        for i in range(m.nnumeric):
+            if m.numeric(i).name == model_lib.MJX_LS_ITERATIONS:
+                m.numeric_data[m.numeric_adr[i]] = float(n)
+                return
+        raise ValueError(f"the model has no numeric {model_lib.MJX_LS_ITERATIONS!r} "
+                         "(physics versions 6 and later)")
+    return edit
+
+
 def chain(*edits):
     """Edit: the edits in order."""
     def edit(m):
@@ -71,9 +85,10 @@ def chain(*edits):
     return edit
 
 
-def sample_states(task: str, n: int, episodes: int = 8, dtype=None) -> dict:
-    """`n` of the scripted controller's grasped states on the C engine, evenly spaced."""
-    st = ep.grasp_states(task, episodes=episodes)
+def sample_states(task: str, n: int, episodes: int = 8, dtype=None, **overrides) -> dict:
+    """`n` of the scripted controller's grasped states on the C engine (the env's config
+    `overrides`, e.g. its physics version), evenly spaced."""
+    st = ep.grasp_states(task, episodes=episodes, **overrides)
     idx = np.linspace(0, st["qpos"].shape[0] - 1, n).astype(int)
     return {k: (v[idx] if dtype is None else v[idx].astype(dtype)) for k, v in st.items()}
 
