@@ -6,10 +6,11 @@ the fraction of states where it fell > 20 mm and the mean absolute difference of
     python experiments/engine_parity/hold.py TASK OUT.json CAND [CAND ...]
 
 Environment: LOADS (comma list, default 0,3,8), UNIQ=1 (MJX with the unique-points prototype,
-unique_points.py), JAX_ENABLE_X64=1 (float64 MJX), PHYSICS_VERSION (the scenes' version, default the current one;
-MJX simulates ``mjx_envs.model.mjx_model`` of each model, as the env does). Candidates: model edits of the grasp pairs
-and solver options, or finger pads (pads.py; ``meshf_mjxbox`` / ``meshneck_mjxbox``: box-shaped
-meshes that MJX collides as boxes, mjx_envs/physics/mjx_contacts.py). Outputs:
+unique_points.py), JAX_ENABLE_X64=1 (float64 MJX), PHYSICS_VERSION (the scenes' version,
+default the current one; MJX simulates ``mjx_envs.model.mjx_model`` of each model, as the env
+does). Candidates: model edits of the grasp pairs and solver options, or finger pads (pads.py;
+``meshf_mjxbox`` / ``meshneck_mjxbox``: box-shaped meshes that MJX collides as boxes,
+mjx_envs/physics/mjx_contacts.py). Outputs:
 docs/results/engines/grasp_hold/hold_*.json, docs/results/engines/unique_points/h_*.json and
 docs/results/engines/manifold_search/hold_*.json (docs/MJX_VS_C.md).
 """
