@@ -18,11 +18,9 @@ convex meshes, so that a tilted finger gives the same contact points on both eng
 (`PHYSICS_V4`). 5 (opt-in): version 4, and MJX collides a box with the table plane at every
 penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). 6 (opt-in): version 5,
 and the C engine's Newton line search runs up to 50 iterations where MJX keeps the scene's
-(`PHYSICS_V6`; C engine only). 7 (opt-in): version 6, and MJX's line search runs to the same 50
-iterations (`PHYSICS_V7`; MJX only). The scenes in assets/ are the current version; `load_model`
+(`PHYSICS_V6`; C engine only). The scenes in assets/ are the current version; `load_model`
 builds the others from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version
-4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7:
-those and `PHYSICS_V7`),
+4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`),
 so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -93,15 +91,6 @@ value. The scenes' 15 let the C engine's Newton solver stop early where two fing
 object into the table, and the integrator then throws the object (docs/MJX_VS_C.md, "Physics
 version 6"). It changes the C engine only: on MJX version 6 acts as version 5."""
 
-PHYSICS_V7 = dict(scenes=PHYSICS_V6["scenes"])
-"""Physics version 7 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
-version 6: the scenes named here lose the numeric `MJX_LS_ITERATIONS`, so MJX's Newton line
-search runs up to the model's own ``opt.ls_iterations`` (version 6's 50), as the C engine's
-does. In version 6 the C engine, near convergence, recovered hard contact states that MJX,
-stopped at 15, did not, and weak MJX-trained checkpoints succeeded more often on the C engine
-(docs/MJX_VS_C.md, "Physics version 7"). It changes MJX only: on the C engine version 7 acts as
-version 6."""
-
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -132,10 +121,7 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
     tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
     the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
-    version 6 those of `PHYSICS_V6`, on the C engine; version 7 those of `PHYSICS_V7`, on MJX."""
-    if version == 7:
-        return (engine != "c" and registry.is_task(task)
-                and registry.get(task).config.scene in PHYSICS_V7["scenes"])
+    version 6 those of `PHYSICS_V6`, on the C engine."""
     if version == 6:
         return (engine != "mjx" and registry.is_task(task)
                 and registry.get(task).config.scene in PHYSICS_V6["scenes"])
@@ -240,8 +226,6 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v5(spec, scene)
     if version >= 6:
         _physics_v6(spec, scene)
-    if version >= 7:
-        _physics_v7(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -324,12 +308,6 @@ def _physics_v6(spec: mujoco.MjSpec, scene: str) -> None:
     if scene in PHYSICS_V6["scenes"]:
         spec.add_numeric(name=MJX_LS_ITERATIONS, data=[float(spec.option.ls_iterations)])
         spec.option.ls_iterations = int(PHYSICS_V6["c_ls_iterations"])
-
-
-def _physics_v7(spec: mujoco.MjSpec, scene: str) -> None:
-    """Turns a version-6 spec (`_physics_v6`) into version 7 (`PHYSICS_V7`)."""
-    if scene in PHYSICS_V7["scenes"]:
-        spec.delete(spec.numeric(MJX_LS_ITERATIONS))
 
 
 def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:

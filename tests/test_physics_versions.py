@@ -23,7 +23,6 @@ from mjx_envs.model import (
     PHYSICS_V1,
     PHYSICS_V4,
     PHYSICS_V6,
-    PHYSICS_V7,
     check_box_meshes,
     load_model,
     mjx_model,
@@ -190,41 +189,6 @@ def test_version_6_lengthens_the_c_engine_s_line_search_only(task):
     mjx_backend = backends.MjxBackend(v6, cfg.n_substeps)
     assert int(mjx_backend.model.opt.ls_iterations) == 15
     assert backends.CBackend(v6, cfg.n_substeps, nthread=1).mj_model.opt.ls_iterations == 50
-
-
-@pytest.mark.parametrize("task", ["pickup", "pot", "push"])
-def test_version_7_gives_mjx_the_c_engine_s_line_search(task):
-    """Version 7 (opt-in): in pick up's and pot's scenes MJX simulates the model itself, with
-    version 6's 50 line-search iterations (the numeric `MJX_LS_ITERATIONS` is gone), and the
-    model is version 6's in every other array and option, so the C engine acts as in version 6;
-    push is version 6 exactly (~2 s, MJX imported, nothing compiled)."""
-    from mjx_envs.physics import backends
-
-    cfg = registry.task_config(task, physics_version=7)
-    v6, v7 = load_model(cfg.scene, physics_version=6), load_model(cfg.scene, physics_version=7)
-    a6 = _arrays(v6)
-    assert mjx_model(v7) is v7
-    for k, value in _options(v7).items():
-        np.testing.assert_array_equal(_options(v6)[k], value, err_msg=k)
-    changed = cfg.scene in PHYSICS_V7["scenes"]
-    for name, value in _arrays(v7).items():
-        if not (changed and name.startswith(("numeric", "name_numericadr", "names", "name_"))):
-            np.testing.assert_array_equal(a6[name], value, err_msg=name)
-    assert not physics_changed(7, task, "c")
-    assert physics_changed(7, task, "mjx") == changed
-    if not changed:
-        return
-    assert v7.nnumeric == v6.nnumeric - 1
-    assert MJX_LS_ITERATIONS not in [v7.numeric(i).name for i in range(v7.nnumeric)]
-    assert v7.opt.ls_iterations == PHYSICS_V6["c_ls_iterations"]
-    assert physics_version_note(6, task, simulated=7, engine="c") is None
-    assert physics_version_note(6, task, simulated=7, engine="mjx") is not None
-    # every engine's entry point: MJX now takes 50 as well
-    env = mjx_envs.make(task, physics="c", physics_version=7)
-    sim = NumpyDualArmEnv(cfg, task=task)
-    assert env.mj_model.opt.ls_iterations == sim.model.opt.ls_iterations == 50
-    assert int(backends.MjxBackend(v7, cfg.n_substeps).model.opt.ls_iterations) == 50
-    assert int(backends.MjxBackend(v6, cfg.n_substeps).model.opt.ls_iterations) == 15
 
 
 def _corners(m, g) -> np.ndarray:

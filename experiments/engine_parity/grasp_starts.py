@@ -5,8 +5,7 @@ version that changes only the C engine (6) still changes what an MJX run trains 
     python experiments/engine_parity/grasp_starts.py A B [--tasks pickup pot] [--json OUT]
 
 Prints, per task, how many of the recorded states differ (largest |qpos| difference > 1e-6)
-and the largest difference. Outputs: docs/results/engines/v7/grasp_starts_5_6.json and
-grasp_starts_6_7.json.
+and the largest difference. Output: docs/results/engines/v6/grasp_starts_5_6.json.
 """
 
 from __future__ import annotations
