@@ -63,6 +63,9 @@ CANDIDATES = {
     "tol0_it30": pt.options(tolerance=0.0, iterations=30, ls_iterations=30),
     "ls_it50": pt.options(ls_iterations=50),
     "mjx_ls_it50": pt.mjx_ls_iterations(50),   # versions 6+: MJX's line search as the C engine's
+    "iterations_50": pt.options(iterations=50),   # Newton iterations (both engines)
+    "ls_it15": pt.options(ls_iterations=15),   # version 6's C engine back to the scenes' 15
+    "ls_it25": pt.options(ls_iterations=25),
     "impratio_5": pt.options(impratio=5.0),
     "impratio_10": pt.options(impratio=10.0),
     "impratio_5_solimp_soft": pt.chain(pt.options(impratio=5.0), _grasp(**SOFT)),
