@@ -89,7 +89,9 @@ version 5: in the scenes named here the model's ``opt.ls_iterations`` (the C eng
 search) is ``c_ls_iterations``, and the numeric `MJX_LS_ITERATIONS` keeps MJX at the scene's own
 value. The scenes' 15 let the C engine's Newton solver stop early where two fingers press the
 object into the table, and the integrator then throws the object (docs/MJX_VS_C.md, "Physics
-version 6"). It changes the C engine only: on MJX version 6 acts as version 5."""
+version 6"). It changes the C engine only: on MJX version 6 acts as version 5, but an MJX run
+that trains from grasped starts (``grasp_start_fraction``) starts from other states, since they
+are recorded with the C engine (`mjx_envs.tasks.grasp_start`)."""
 
 PHYSICS_V2 = dict(
     pair_solimp={
