@@ -13,8 +13,9 @@ pot's handles, as box-shaped convex meshes in the grasp pairs; the fingers stay 
 collides the meshes as boxes, the C engine as meshes with multi-contact; ``meshf_mjxbox`` is
 physics version 4's ``mjx_envs.model.PHYSICS_V4``); ``v4_all_fingers`` is version 4 with every
 finger pair (also those of friction 1 or less: the bar's middle and caps, the pot's body) on the
-finger's mesh copy, and ``v5_all_fingers`` the same in physics version 5 (MJX's box-on-table
-contacts at every penetrating corner).
+finger's mesh copy, ``v5_all_fingers`` the same in physics version 5 (MJX's box-on-table
+contacts at every penetrating corner) and ``v6_all_fingers`` in version 6 (the C engine's line
+search at 50 iterations).
 `model(kind, scene)` builds one model; `patch(kind)` makes every model the package loads
 (trainer, evaluation, the parity measurement) carry the pads.
 """
@@ -41,7 +42,8 @@ CAPSULES = {
     "caps3": dict(r=0.006, xs=(-0.011, 0.0, 0.011), zc=0.035, half=0.032),
 }
 PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "meshneck_noccd",
-        "meshf_mjxbox", "meshneck_mjxbox", "v4_all_fingers", "v5_all_fingers")
+        "meshf_mjxbox", "meshneck_mjxbox", "v4_all_fingers", "v5_all_fingers",
+        "v6_all_fingers")
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -175,6 +177,13 @@ def edit_for(kind: str):
             model_lib._physics_v4(spec, scene, -1.0)
             model_lib._physics_v5(spec, scene)
         return v5
+    if kind == "v6_all_fingers":   # the same in version 6 (the C engine's line search at 50)
+
+        def v6(spec, scene="scene_pickup.xml"):
+            model_lib._physics_v4(spec, scene, -1.0)
+            model_lib._physics_v5(spec, scene)
+            model_lib._physics_v6(spec, scene)
+        return v6
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
 
@@ -182,7 +191,8 @@ def model(kind: str, scene: str, timestep=None, cone=None) -> mujoco.MjModel:
     """The scene's model with pads of `kind`, the task's timestep and cone when given."""
     with model_lib.scene_path(scene) as path:
         spec = mujoco.MjSpec.from_file(str(path))
-        if kind in ("v4_all_fingers", "v5_all_fingers"):
+        if kind in ("v4_all_fingers", "v5_all_fingers",
+        "v6_all_fingers"):
             edit_for(kind)(spec, scene)
         else:
             edit_for(kind)(spec)
