@@ -18,9 +18,10 @@ convex meshes, so that a tilted finger gives the same contact points on both eng
 (`PHYSICS_V4`). 5 (opt-in): version 4, and MJX collides a box with the table plane at every
 penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). 6 (opt-in): version 5,
 and the C engine's Newton line search runs up to 50 iterations where MJX keeps the scene's
-(`PHYSICS_V6`; C engine only). The scenes in assets/ are the current version; `load_model`
+(`PHYSICS_V6`; C engine only). 7 (opt-in): version 6, and in pick up every finger pair, not
+only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). The scenes in assets/ are the current version; `load_model`
 builds the others from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version
-4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`),
+4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`),
 so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -93,6 +94,17 @@ version 6"). It changes the C engine only: on MJX version 6 acts as version 5, b
 that trains from grasped starts (``grasp_start_fraction``) starts from other states, since they
 are recorded with the C engine (`mjx_envs.tasks.grasp_start`)."""
 
+PHYSICS_V7 = dict(scenes=("scene_pickup.xml",))
+"""Physics version 7 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+version 6: in the scenes named here every finger pair collides the finger's box-shaped mesh
+copy, also the pairs that only block (the bar's middle and caps, friction 0.05), not only the
+grasp pairs of version 4. A tilted finger box on the bar's middle got its deepest corner alone
+from the C engine's box-box collision where MJX's returns every penetrating corner; the mesh
+copy gives the C engine MJX's points (multiccd), and MJX collides the copy as the box it had
+(`MJX_BOX_MESHES`), so version 7 changes the C engine only. Pot's scene is left as in version
+6: there the same change made the C engine's pot grasps worse (docs/MJX_VS_C.md, "Physics
+version 7")."""
+
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -123,7 +135,11 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     versions 2 and 3 changed the finger contacts, so every task with an object (reach and unknown
     tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
     the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
-    version 6 those of `PHYSICS_V6`, on the C engine."""
+    version 6 those of `PHYSICS_V6`, on the C engine; version 7 those of `PHYSICS_V7`, on the C
+    engine."""
+    if version == 7:
+        return (engine != "mjx" and registry.is_task(task)
+                and registry.get(task).config.scene in PHYSICS_V7["scenes"])
     if version == 6:
         return (engine != "mjx" and registry.is_task(task)
                 and registry.get(task).config.scene in PHYSICS_V6["scenes"])
@@ -228,6 +244,8 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v5(spec, scene)
     if version >= 6:
         _physics_v6(spec, scene)
+    if version >= 7:
+        _physics_v7(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -272,14 +290,26 @@ def _physics_v4(spec: mujoco.MjSpec, scene: str, grasp_friction: float | None = 
     finger pairs above that friction get the mesh copy instead (the engine probes' variants)."""
     if scene not in PHYSICS_V4["scenes"]:
         return
-    if grasp_friction is None:
-        grasp_friction = PHYSICS_V4["grasp_friction"]
+    _mesh_finger_pairs(spec, PHYSICS_V4["grasp_friction"] if grasp_friction is None
+                       else grasp_friction)
+    spec.add_numeric(name=MJX_BOX_MESHES, data=[1.0])
+    spec.add_numeric(name=MJX_FINITE_LINESEARCH, data=[1.0])
+
+
+def _mesh_finger_pairs(spec: mujoco.MjSpec, above_friction: float) -> None:
+    """Every pair of a finger box whose sliding friction exceeds ``above_friction`` names the
+    finger's box-shaped convex mesh copy instead (geom ``<finger>_mesh``, made on first use:
+    same body and pose, no mass, group 3, in no other pair)."""
     fingers = {g.name: (b, g) for b in spec.bodies for g in b.geoms if _is_finger(g.name)}
-    meshes: dict[tuple, str] = {}
+    meshes: dict[tuple, str] = {}   # half sizes -> the mesh already made (version 4's)
+    for mesh in spec.meshes:
+        if mesh.name.startswith("finger_box_"):
+            v = np.asarray(mesh.uservert, np.float64).reshape(-1, 3)
+            meshes[tuple(float(x) for x in v.max(axis=0))] = mesh.name
     for pair in spec.pairs:
         for attr in ("geomname1", "geomname2"):
             name = getattr(pair, attr)
-            if name not in fingers or pair.friction[0] <= grasp_friction:
+            if name not in fingers or pair.friction[0] <= above_friction:
                 continue
             body, geom = fingers[name]
             if spec.geom(name + "_mesh") is None:
@@ -294,8 +324,6 @@ def _physics_v4(spec: mujoco.MjSpec, scene: str, grasp_friction: float | None = 
                               meshname=meshes[half], pos=list(geom.pos), quat=list(geom.quat),
                               contype=0, conaffinity=0, group=3, density=0.0)
             setattr(pair, attr, name + "_mesh")
-    spec.add_numeric(name=MJX_BOX_MESHES, data=[1.0])
-    spec.add_numeric(name=MJX_FINITE_LINESEARCH, data=[1.0])
 
 
 def _physics_v5(spec: mujoco.MjSpec, scene: str) -> None:
@@ -310,6 +338,12 @@ def _physics_v6(spec: mujoco.MjSpec, scene: str) -> None:
     if scene in PHYSICS_V6["scenes"]:
         spec.add_numeric(name=MJX_LS_ITERATIONS, data=[float(spec.option.ls_iterations)])
         spec.option.ls_iterations = int(PHYSICS_V6["c_ls_iterations"])
+
+
+def _physics_v7(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a version-6 spec (`_physics_v6`) into version 7 (`PHYSICS_V7`)."""
+    if scene in PHYSICS_V7["scenes"]:
+        _mesh_finger_pairs(spec, -1.0)
 
 
 def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:

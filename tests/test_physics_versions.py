@@ -23,6 +23,7 @@ from mjx_envs.model import (
     PHYSICS_V1,
     PHYSICS_V4,
     PHYSICS_V6,
+    PHYSICS_V7,
     check_box_meshes,
     load_model,
     mjx_model,
@@ -189,6 +190,44 @@ def test_version_6_lengthens_the_c_engine_s_line_search_only(task):
     mjx_backend = backends.MjxBackend(v6, cfg.n_substeps)
     assert int(mjx_backend.model.opt.ls_iterations) == 15
     assert backends.CBackend(v6, cfg.n_substeps, nthread=1).mj_model.opt.ls_iterations == 50
+
+
+@pytest.mark.parametrize("task", ["pickup", "pot", "push"])
+def test_version_7_meshes_every_finger_pair_of_pick_up(task):
+    """Version 7 (opt-in): in pick up's scene every finger pair, also the bar's middle and caps
+    (friction 0.05), names the finger's mesh copy, which version 4 made for the grasp pairs (no
+    new geom or mesh); every friction, solref, solimp and option is version 6's. Pot and push
+    are version 6 exactly. The change is the C engine's only: MJX collides the copies as the
+    boxes they copy (`MJX_BOX_MESHES`; the same 300 episodes on MJX in docs/MJX_VS_C.md,
+    "Physics version 7") (~1 s)."""
+    cfg = registry.task_config(task, physics_version=7)
+    v6, v7 = load_model(cfg.scene, physics_version=6), load_model(cfg.scene, physics_version=7)
+    a6, a7 = _arrays(v6), _arrays(v7)
+    if cfg.scene not in PHYSICS_V7["scenes"]:
+        for name in a6:
+            np.testing.assert_array_equal(a6[name], a7[name], err_msg=name)
+        assert not physics_changed(7, task)
+        return
+    assert physics_changed(7, task, "c") and not physics_changed(7, task, "mjx")
+    assert physics_version_note(6, task, simulated=7, engine="mjx") is None
+    assert physics_version_note(6, task, simulated=7, engine="c") is not None
+    assert (v7.ngeom, v7.nmesh, v7.npair) == (v6.ngeom, v6.nmesh, v6.npair)
+    check_box_meshes(v7)
+    moved = 0
+    for i in range(v6.npair):
+        n6 = (v6.geom(int(v6.pair_geom1[i])).name, v6.geom(int(v6.pair_geom2[i])).name)
+        n7 = (v7.geom(int(v7.pair_geom1[i])).name, v7.geom(int(v7.pair_geom2[i])).name)
+        assert n7 == tuple(n + "_mesh" if n.endswith(("_finger1", "_finger2")) else n
+                           for n in n6)
+        assert not any(n.endswith(("_finger1", "_finger2")) for n in n7)
+        moved += n7 != n6
+    assert moved == 8   # 4 fingers x (the bar's middle, their cap)
+    for name in a6:
+        if not name.startswith(("pair_geom", "pair_signature")):
+            np.testing.assert_array_equal(a6[name], a7[name], err_msg=name)
+    o6, o7 = _options(v6), _options(v7)
+    for k in o6:
+        np.testing.assert_array_equal(o6[k], o7[k], err_msg=k)
 
 
 def _corners(m, g) -> np.ndarray:
