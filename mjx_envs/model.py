@@ -19,10 +19,11 @@ convex meshes, so that a tilted finger gives the same contact points on both eng
 penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). 6 (opt-in): version 5,
 and the C engine's Newton line search runs up to 50 iterations where MJX keeps the scene's
 (`PHYSICS_V6`; C engine only). 7 (opt-in): version 6, and in pick up every finger pair, not
-only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). The scenes in assets/ are the current version; `load_model`
-builds the others from them (version 2: `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version
-4: `PHYSICS_V4`; version 5: that and `PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`),
-so that a run or a policy file acts with the physics it was trained on (`physics_version_note`
+only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). The scenes
+in assets/ are the current version; `load_model` builds the others from them (version 2:
+`PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`; version 5: that and
+`PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`), so that a
+run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
 
