@@ -347,3 +347,28 @@ def test_version_6_keeps_the_c_engine_from_throwing_the_pot_where_version_5_stop
         assert np.linalg.norm(v5_v - mjx_v) > 1.0, k
         assert np.linalg.norm(v6_v - mjx_v) < 0.03, k
         np.testing.assert_allclose(v6_v, _object_velocity(converged, s, k), atol=1e-3)
+
+
+@pytest.mark.mjx
+def test_version_7_leaves_mjx_s_finger_contacts_as_they_were():
+    """Version 7 moves pick up's blocker pairs to the fingers' mesh copies. MJX routes a (box,
+    box-shaped mesh) pair to its box-box collider, the geoms in the other order: at 64 random
+    poses of a finger pressed into a box (±3° per axis, 0.2-1.5 mm deep) it returns the same
+    points as for the two boxes, with summed depths equal to float rounding; the C engine's
+    multi-contact convex collider returns as many, where its box-box returns fewer (~10 s: two
+    small compiles)."""
+    from experiments.engine_parity import manifold_static as ms
+
+    rng = np.random.default_rng(0)
+    tilts = [tuple(t) for t in rng.uniform(-3, 3, (64, 3))]
+    poses = [ms.finger_pose(t, p) for t, p in zip(tilts, rng.uniform(2e-4, 1.5e-3, 64),
+                                                  strict=True)]
+    boxes, meshes = ms.mjx_points(ms.model("boxbox"), poses), ms.mjx_points(
+        ms.model("meshfinger_mjxbox"), poses)
+    for a, b in zip(boxes, meshes, strict=True):
+        assert len(a) == len(b)
+        assert abs(sum(x[0] for x in a) - sum(x[0] for x in b)) < 1e-6   # mm
+    c_mesh = ms.c_points(ms.model("meshfinger_mjxbox"), poses)
+    c_box = ms.c_points(ms.model("boxbox"), poses)
+    assert [len(a) for a in c_mesh] == [len(a) for a in meshes]
+    assert sum(len(a) < len(b) for a, b in zip(c_box, meshes, strict=True)) >= 16

@@ -15,7 +15,7 @@ physics version 4's ``mjx_envs.model.PHYSICS_V4``); ``v4_all_fingers`` is versio
 finger pair (also those of friction 1 or less: the bar's middle and caps, the pot's body) on the
 finger's mesh copy, ``v5_all_fingers`` the same in physics version 5 (MJX's box-on-table
 contacts at every penetrating corner) and ``v6_all_fingers`` in version 6 (the C engine's line
-search at 50 iterations).
+search at 50 iterations; ``v6``: version 6 itself, to compare with).
 `model(kind, scene)` builds one model; `patch(kind)` makes every model the package loads
 (trainer, evaluation, the parity measurement) carry the pads.
 """
@@ -43,7 +43,7 @@ CAPSULES = {
 }
 PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "meshneck_noccd",
         "meshf_mjxbox", "meshneck_mjxbox", "v4_all_fingers", "v5_all_fingers",
-        "v6_all_fingers")
+        "v6_all_fingers", "v6")
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -177,6 +177,11 @@ def edit_for(kind: str):
             model_lib._physics_v4(spec, scene, -1.0)
             model_lib._physics_v5(spec, scene)
         return v5
+    if kind == "v6":   # physics version 6 itself (to compare the probes' kinds with)
+
+        def v6_only(spec, scene="scene_pickup.xml"):
+            model_lib.edit_spec(spec, scene, 6)
+        return v6_only
     if kind == "v6_all_fingers":   # the same in version 6 (the C engine's line search at 50)
 
         def v6(spec, scene="scene_pickup.xml"):
