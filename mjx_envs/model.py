@@ -138,12 +138,10 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
     version 6 those of `PHYSICS_V6`, on the C engine; version 7 those of `PHYSICS_V7`, on the C
     engine."""
-    if version == 7:
+    if version in (6, 7):   # the C engine only
+        scenes = (PHYSICS_V6 if version == 6 else PHYSICS_V7)["scenes"]
         return (engine != "mjx" and registry.is_task(task)
-                and registry.get(task).config.scene in PHYSICS_V7["scenes"])
-    if version == 6:
-        return (engine != "mjx" and registry.is_task(task)
-                and registry.get(task).config.scene in PHYSICS_V6["scenes"])
+                and registry.get(task).config.scene in scenes)
     if version == 5:
         return (engine != "c" and registry.is_task(task)
                 and registry.get(task).config.scene in PHYSICS_V5["scenes"])

@@ -44,6 +44,8 @@ CAPSULES = {
 PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "meshneck_noccd",
         "meshf_mjxbox", "meshneck_mjxbox", "v4_all_fingers", "v5_all_fingers",
         "v6_all_fingers", "v6")
+VERSION_KINDS = ("v4_all_fingers", "v5_all_fingers", "v6_all_fingers", "v6")
+"""kinds that edit a physics version's scene (their edit takes the scene's name)"""
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -178,17 +180,14 @@ def edit_for(kind: str):
             model_lib._physics_v5(spec, scene)
         return v5
     if kind == "v6":   # physics version 6 itself (to compare the probes' kinds with)
+        return lambda spec, scene="scene_pickup.xml": model_lib.edit_spec(spec, scene, 6)
+    if kind == "v6_all_fingers":   # version 6 with every finger pair on the mesh copy
 
-        def v6_only(spec, scene="scene_pickup.xml"):
+        def v6_all(spec, scene="scene_pickup.xml"):
             model_lib.edit_spec(spec, scene, 6)
-        return v6_only
-    if kind == "v6_all_fingers":   # the same in version 6 (the C engine's line search at 50)
-
-        def v6(spec, scene="scene_pickup.xml"):
-            model_lib._physics_v4(spec, scene, -1.0)
-            model_lib._physics_v5(spec, scene)
-            model_lib._physics_v6(spec, scene)
-        return v6
+            if scene in model_lib.PHYSICS_V4["scenes"]:
+                model_lib._mesh_finger_pairs(spec, -1.0)
+        return v6_all
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
 
@@ -196,8 +195,7 @@ def model(kind: str, scene: str, timestep=None, cone=None) -> mujoco.MjModel:
     """The scene's model with pads of `kind`, the task's timestep and cone when given."""
     with model_lib.scene_path(scene) as path:
         spec = mujoco.MjSpec.from_file(str(path))
-        if kind in ("v4_all_fingers", "v5_all_fingers",
-        "v6_all_fingers"):
+        if kind in VERSION_KINDS:
             edit_for(kind)(spec, scene)
         else:
             edit_for(kind)(spec)
