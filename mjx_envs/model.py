@@ -19,10 +19,13 @@ convex meshes, so that a tilted finger gives the same contact points on both eng
 penetrating bottom corner, as the C engine does (`PHYSICS_V5`; MJX only). 6 (opt-in): version 5,
 and the C engine's Newton line search runs up to 50 iterations where MJX keeps the scene's
 (`PHYSICS_V6`; C engine only). 7 (opt-in): version 6, and in pick up every finger pair, not
-only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). The scenes
+only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). 8
+(opt-in): version 6 (not 7), and in pick up the finger pairs with the bar's caps collide the
+finger's mesh copy (`PHYSICS_V8`; C engine only). The scenes
 in assets/ are the current version; `load_model` builds the others from them (version 2:
 `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`; version 5: that and
-`PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`), so that a
+`PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`; version 8:
+version 6's and `PHYSICS_V8`), so that a
 run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -106,6 +109,16 @@ copy gives the C engine MJX's points (multiccd), and MJX collides the copy as th
 6: there the same change made the C engine's pot grasps worse (docs/MJX_VS_C.md, "Physics
 version 7")."""
 
+PHYSICS_V8 = dict(mesh_blockers={"scene_pickup.xml": ("bar_cap_l", "bar_cap_r")})
+"""Physics version 8 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+version 6 (not 7): in the scenes named in ``mesh_blockers`` the finger pairs with the named
+object geoms collide the finger's box-shaped mesh copy (pick up: the bar's caps, 4 pairs), where
+version 7 moved every finger pair (also the bar's middle). On the C engine version 7's middle
+pairs cost one MJX-trained policy as much as its cap pairs gained another; with the caps alone
+the eight MJX-trained pick-up checkpoints screened came closest to MJX (docs/MJX_VS_C.md,
+"Physics version 8"). MJX collides the copies as the boxes they copy (`MJX_BOX_MESHES`), so
+version 8 changes the C engine only."""
+
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -137,9 +150,11 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     tasks: no); on the C engine version 3 changed only the scenes `PHYSICS_V2` names; version 4
     the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
     version 6 those of `PHYSICS_V6`, on the C engine; version 7 those of `PHYSICS_V7`, on the C
-    engine."""
-    if version in (6, 7):   # the C engine only
-        scenes = (PHYSICS_V6 if version == 6 else PHYSICS_V7)["scenes"]
+    engine; version 8 those of `PHYSICS_V8`, on the C engine (against version 7: the scenes of
+    both, whose C engine they change back or anew)."""
+    if version in (6, 7, 8):   # the C engine only
+        scenes = {6: PHYSICS_V6["scenes"], 7: PHYSICS_V7["scenes"],
+                  8: tuple(PHYSICS_V8["mesh_blockers"])}[version]
         return (engine != "mjx" and registry.is_task(task)
                 and registry.get(task).config.scene in scenes)
     if version == 5:
@@ -243,8 +258,10 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v5(spec, scene)
     if version >= 6:
         _physics_v6(spec, scene)
-    if version >= 7:
+    if version == 7:
         _physics_v7(spec, scene)
+    if version >= 8:
+        _physics_v8(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -343,6 +360,23 @@ def _physics_v7(spec: mujoco.MjSpec, scene: str) -> None:
     """Turns a version-6 spec (`_physics_v6`) into version 7 (`PHYSICS_V7`)."""
     if scene in PHYSICS_V7["scenes"]:
         _mesh_finger_pairs(spec, -1.0)
+
+
+def _physics_v8(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a version-6 spec (`_physics_v6`) into version 8 (`PHYSICS_V8`)."""
+    objects = PHYSICS_V8["mesh_blockers"].get(scene, ())
+    if not objects:
+        return
+    copies = {g.name for b in spec.bodies for g in b.geoms if g.name.endswith("_mesh")}
+    for pair in spec.pairs:
+        names = (pair.geomname1, pair.geomname2)
+        if not any(n in objects for n in names):
+            continue
+        for attr, name in zip(("geomname1", "geomname2"), names, strict=True):
+            if _is_finger(name):
+                if name + "_mesh" not in copies:   # version 4 made one per finger
+                    raise ValueError(f"{scene}: finger {name} has no mesh copy")
+                setattr(pair, attr, name + "_mesh")
 
 
 def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:

@@ -24,6 +24,7 @@ from mjx_envs.model import (
     PHYSICS_V4,
     PHYSICS_V6,
     PHYSICS_V7,
+    PHYSICS_V8,
     check_box_meshes,
     load_model,
     mjx_model,
@@ -228,6 +229,43 @@ def test_version_7_meshes_every_finger_pair_of_pick_up(task):
     o6, o7 = _options(v6), _options(v7)
     for k in o6:
         np.testing.assert_array_equal(o6[k], o7[k], err_msg=k)
+
+
+@pytest.mark.parametrize("task", ["pickup", "pot"])
+def test_version_8_meshes_pick_up_s_cap_pairs_on_version_6(task):
+    """Version 8 (opt-in) is version 6 (not 7) with pick up's four finger-cap pairs on the
+    fingers' mesh copies: the grasp pairs stay on the copies (version 4), the finger-middle
+    pairs stay boxes, nothing else changes. Pot is version 6 exactly. A C-engine change only;
+    between versions 7 and 8 the C engine of pick up changes (the middle pairs go back) (~1 s)."""
+    cfg = registry.task_config(task, physics_version=8)
+    v6, v8 = load_model(cfg.scene, physics_version=6), load_model(cfg.scene, physics_version=8)
+    a6, a8 = _arrays(v6), _arrays(v8)
+    if cfg.scene not in PHYSICS_V8["mesh_blockers"]:
+        for name in a6:
+            np.testing.assert_array_equal(a6[name], a8[name], err_msg=name)
+        assert not physics_changed(8, task)
+        return
+    assert physics_changed(8, task, "c") and not physics_changed(8, task, "mjx")
+    assert physics_version_note(7, task, simulated=8, engine="c") is not None
+    assert physics_version_note(6, task, simulated=8, engine="mjx") is None
+    assert (v8.ngeom, v8.nmesh, v8.npair) == (v6.ngeom, v6.nmesh, v6.npair)
+    check_box_meshes(v8)
+    moved = []
+    for i in range(v6.npair):
+        n6 = (v6.geom(int(v6.pair_geom1[i])).name, v6.geom(int(v6.pair_geom2[i])).name)
+        n8 = (v8.geom(int(v8.pair_geom1[i])).name, v8.geom(int(v8.pair_geom2[i])).name)
+        if n8 != n6:
+            moved.append(n6)
+            assert n8 == tuple(n + "_mesh" if n.endswith(("_finger1", "_finger2")) else n
+                               for n in n6)
+    assert sorted(moved) == sorted((f"{a}_finger{k}", f"bar_cap_{a}") for a in "lr"
+                                   for k in (1, 2))
+    for name in a6:
+        if not name.startswith(("pair_geom", "pair_signature")):
+            np.testing.assert_array_equal(a6[name], a8[name], err_msg=name)
+    o6, o8 = _options(v6), _options(v8)
+    for k in o6:
+        np.testing.assert_array_equal(o6[k], o8[k], err_msg=k)
 
 
 def _corners(m, g) -> np.ndarray:

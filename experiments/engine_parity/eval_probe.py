@@ -72,6 +72,8 @@ CANDIDATES = {
     # the grasp pairs
     "grasp_solimp_soft": _grasp(**SOFT),
     "grasp_solref_0.03": _grasp(solref=(0.03, 1.0)),
+    "grasp_solref_0.025": _grasp(solref=(0.025, 1.0)),
+    "grasp_solref_0.015": _grasp(solref=(0.015, 1.0)),
     "neck_solref_0.04": _neck(solref=(0.04, 1.0)),
     "neck_solimp_soft": _neck(**SOFT),
     "neck_friction_2.0": _neck(friction=(2.0, 2.0, 0.01, 0.0001, 0.0001)),
