@@ -266,6 +266,11 @@ def test_version_8_meshes_pick_up_s_cap_pairs_on_version_6(task):
     o6, o8 = _options(v6), _options(v8)
     for k in o6:
         np.testing.assert_array_equal(o6[k], o8[k], err_msg=k)
+    from experiments.engine_parity import pads  # the screen's kind is version 8's scene
+
+    screened = _arrays(pads.model("v6_cap_fingers", cfg.scene))
+    for name in a8:
+        np.testing.assert_array_equal(a8[name], screened[name], err_msg=name)
 
 
 def _corners(m, g) -> np.ndarray:

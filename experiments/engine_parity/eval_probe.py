@@ -74,6 +74,11 @@ CANDIDATES = {
     "grasp_solref_0.03": _grasp(solref=(0.03, 1.0)),
     "grasp_solref_0.025": _grasp(solref=(0.025, 1.0)),
     "grasp_solref_0.015": _grasp(solref=(0.015, 1.0)),
+    # every finger pair (grasp and blocker: the pot's body, the bar's middle and caps)
+    "fingers_solref_0.015": pt.pair_fields(words=("pot_", "bar_"), min_friction=None,
+                                           finger=True, solref=(0.015, 1.0)),
+    "fingers_solref_0.0175": pt.pair_fields(words=("pot_", "bar_"), min_friction=None,
+                                            finger=True, solref=(0.0175, 1.0)),
     "neck_solref_0.04": _neck(solref=(0.04, 1.0)),
     "neck_solimp_soft": _neck(**SOFT),
     "neck_friction_2.0": _neck(friction=(2.0, 2.0, 0.01, 0.0001, 0.0001)),

@@ -107,16 +107,31 @@ def pair_counts(env, m, rec) -> dict:
     for k in range(len(q)):
         d.qpos[:] = q[k]
         mujoco.mj_forward(m, d)
-        c_n = Counter((name(c.geom1), name(c.geom2)) for c in d.contact[:d.ncon])
-        m_n = Counter((name(g[0]), name(g[1])) for x, g in zip(dist[k], geom[k]) if x < 0)
+        c_n, c_d = Counter(), Counter()
+        for c in d.contact[:d.ncon]:
+            if c.dist < 0:
+                c_n[name(c.geom1), name(c.geom2)] += 1
+                c_d[name(c.geom1), name(c.geom2)] -= 1e3 * float(c.dist)
+        m_n, m_d = Counter(), Counter()
+        for x, g in zip(dist[k], geom[k]):
+            if x < 0:
+                m_n[name(g[0]), name(g[1])] += 1
+                m_d[name(g[0]), name(g[1])] -= 1e3 * float(x)
         for pair in set(c_n) | set(m_n):
-            row = table.setdefault("-".join(pair), dict(states=0, differ=0, c=0, mjx=0))
+            row = table.setdefault("-".join(pair), dict(states=0, differ=0, c=0, mjx=0,
+                                                        c_depth=0.0, mjx_depth=0.0,
+                                                        c_deepest=0.0, mjx_deepest=0.0))
             row["states"] += 1
             row["differ"] += c_n[pair] != m_n[pair]
             row["c"] += c_n[pair]
             row["mjx"] += m_n[pair]
+            row["c_depth"] += c_d[pair]
+            row["mjx_depth"] += m_d[pair]
+            row["c_deepest"] = max(row["c_deepest"], c_d[pair] / max(c_n[pair], 1))
+            row["mjx_deepest"] = max(row["mjx_deepest"], m_d[pair] / max(m_n[pair], 1))
     for row in table.values():
-        row["c"], row["mjx"] = (round(row[k] / row["states"], 2) for k in ("c", "mjx"))
+        for k in ("c", "mjx", "c_depth", "mjx_depth"):
+            row[k] = round(row[k] / row["states"], 2)
     return dict(sorted(table.items(), key=lambda kv: -kv[1]["differ"]))
 
 
@@ -183,10 +198,12 @@ def main(argv=None) -> int:
         print(json.dumps(per_step[-1]), flush=True)
     counts = pair_counts(env, m, rec)
     print("contact points per pair at the same positions (states: either touches; differ: "
-          "the counts differ; mean points C / MJX):")
+          "the counts differ; mean points C / MJX; mean summed depth of the penetrating "
+          "points, mm):")
     for pair, row in counts.items():
         print(f"  {pair:32s} states {row['states']:4d} differ {row['differ']:4d} "
-              f"C {row['c']:.2f} MJX {row['mjx']:.2f}")
+              f"C {row['c']:.2f} MJX {row['mjx']:.2f}; summed depth mm C {row['c_depth']:.2f} "
+              f"MJX {row['mjx_depth']:.2f}")
     worst = sorted(rows, key=lambda x: -x["dvel_mm_s"])[:a.worst]
     for x in worst:
         print(f"t={x['t']} ep={x['episode']} dpos {x['dpos_mm']:.3f} mm dvel "
