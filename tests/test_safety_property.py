@@ -209,13 +209,13 @@ def _check(run, monkeypatch_cls, recorder):
     return out
 
 
-def _property(monkeypatch, examples: int):
+def _property(monkeypatch, examples: int, at: int = SEED):
     recorder = ArmRecorder()
     install(monkeypatch, recorder)
     originals = {"servoL": SimRTDEControl.servoL, "move": SimGripper.move,
                  "set": monkeypatch.setattr}
 
-    @seed(SEED)
+    @seed(at)
     @settings(max_examples=examples, deadline=None, derandomize=False, database=None,
               suppress_health_check=list(HealthCheck))
     @given(runs())
@@ -230,9 +230,16 @@ def _property(monkeypatch, examples: int):
 
 
 def test_no_command_leaves_the_limits_whatever_the_service_files_and_arms_do(monkeypatch):
-    """~5 s: >= 500 generated control periods (seed SEED)."""
-    periods = _property(monkeypatch, 12)
-    print(f"generated control periods: {periods} (seed {SEED})")
+    """~5 s: >= 500 generated control periods: 12 runs of seed SEED, and 12 more of the next
+    seed while fewer (how many periods 12 runs make varies with what the process imported
+    before, 494-647 seen; docs/RELIABILITY.md)."""
+    periods, seeds = 0, []
+    for at in range(SEED, SEED + 4):
+        periods += _property(monkeypatch, 12, at)
+        seeds.append(at)
+        if periods >= 500:
+            break
+    print(f"generated control periods: {periods} (seeds {seeds})")
     assert periods >= 500
 
 
