@@ -364,9 +364,12 @@ def _physics_v7(spec: mujoco.MjSpec, scene: str) -> None:
 
 def _physics_v8(spec: mujoco.MjSpec, scene: str) -> None:
     """Turns a version-6 spec (`_physics_v6`) into version 8 (`PHYSICS_V8`)."""
-    objects = PHYSICS_V8["mesh_blockers"].get(scene, ())
-    if not objects:
-        return
+    mesh_pairs_with(spec, PHYSICS_V8["mesh_blockers"].get(scene, ()))
+
+
+def mesh_pairs_with(spec: mujoco.MjSpec, objects) -> None:
+    """The finger pairs with a geom named in ``objects`` name the finger's mesh copy (which
+    version 4 made; ValueError without one)."""
     copies = {g.name for b in spec.bodies for g in b.geoms if g.name.endswith("_mesh")}
     for pair in spec.pairs:
         names = (pair.geomname1, pair.geomname2)
@@ -375,7 +378,7 @@ def _physics_v8(spec: mujoco.MjSpec, scene: str) -> None:
         for attr, name in zip(("geomname1", "geomname2"), names, strict=True):
             if _is_finger(name):
                 if name + "_mesh" not in copies:   # version 4 made one per finger
-                    raise ValueError(f"{scene}: finger {name} has no mesh copy")
+                    raise ValueError(f"finger {name} has no mesh copy")
                 setattr(pair, attr, name + "_mesh")
 
 

@@ -46,10 +46,11 @@ PADS = (*SPHERES, *CAPSULES, "recessed", "meshf", "meshf_noccd", "meshneck", "me
         "v6_all_fingers", "v6", "v6_mid_fingers", "v6_cap_fingers")
 VERSION_KINDS = ("v4_all_fingers", "v5_all_fingers", "v6_all_fingers", "v6", "v6_mid_fingers",
                  "v6_cap_fingers")
-BLOCKER_WORDS = {"v6_mid_fingers": ("bar_mid",), "v6_cap_fingers": ("bar_cap",)}
-"""the blocker pairs (by the other geom's name) that ``v6_mid_fingers`` / ``v6_cap_fingers``
-move to the fingers' mesh copies (version 7 moves both)"""
 """kinds that edit a physics version's scene (their edit takes the scene's name)"""
+BLOCKER_WORDS = {"v6_mid_fingers": ("bar_mid",),
+                 "v6_cap_fingers": model_lib.PHYSICS_V8["mesh_blockers"]["scene_pickup.xml"]}
+"""the object geoms whose finger pairs ``v6_mid_fingers`` / ``v6_cap_fingers`` move to the
+fingers' mesh copies (`mjx_envs.model.mesh_pairs_with`; version 7 moves both)"""
 GRASP_SCENES = ("scene_pickup.xml", "scene_pot.xml")
 MESH_HALF = np.array([0.017, 0.011, 0.040])   # the finger box's half sizes
 
@@ -148,25 +149,6 @@ def mesh_objects(spec):
             p.geomname2 = name
 
 
-def mesh_blockers(spec, words):
-    """Version 7's edit restricted to the finger pairs whose other geom's name holds one of
-    `words`: those pairs name the finger's mesh copy (made by `_mesh_finger_pairs` for the
-    grasp pairs already, in versions 4-6)."""
-    fingers = _fingers(spec)
-    for p in spec.pairs:
-        names = (p.geomname1, p.geomname2)
-        fname = next((n for n in names if n in fingers), None)
-        other = next((n for n in names if n != fname), "")
-        if fname is None or not any(w in other for w in words):
-            continue
-        if spec.geom(fname + "_mesh") is None:
-            raise ValueError(f"{fname} has no mesh copy (physics version 4 or later makes it)")
-        if p.geomname1 == fname:
-            p.geomname1 = fname + "_mesh"
-        else:
-            p.geomname2 = fname + "_mesh"
-
-
 def recessed_options() -> dict:
     """The recessed pads from the environment: OUT_M (m beyond the face, default 0.001) and
     GRID=dense|spheres (default dense)."""
@@ -216,7 +198,7 @@ def edit_for(kind: str):
         def v6_some(spec, scene="scene_pickup.xml"):
             model_lib.edit_spec(spec, scene, 6)
             if scene in model_lib.PHYSICS_V7["scenes"]:
-                mesh_blockers(spec, BLOCKER_WORDS[kind])
+                model_lib.mesh_pairs_with(spec, BLOCKER_WORDS[kind])
         return v6_some
     raise ValueError(f"unknown pad kind {kind!r}; one of {', '.join(PADS)}")
 
