@@ -44,6 +44,7 @@ import os
 import sys
 import threading
 import time
+import weakref
 
 import numpy as np
 
@@ -144,21 +145,54 @@ def run_watched(fn, timeout: float | None, what: str = "chunk", retries: int = 1
     raise EngineHang(f"{what} made no progress in {timeout:g} s, twice (the engine hangs)")
 
 
-_ROLLOUTS: dict = {}
+class IdentityCache:
+    """Values cached per *object identity* (plus a hashable key): ``get(objs, key, build)``
+    returns ``build()``'s value for the same live objects and key. The entry holds weak
+    references to its objects and is dropped when one of them is collected, so a new object
+    that reuses a dead one's ``id()`` never receives the dead one's value (a perturbation grid
+    builds one env per grid point and drops it: keyed on bare ids, a later point could get an
+    earlier point's compiled rollout)."""
+
+    def __init__(self):
+        self._entries: dict = {}
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def get(self, objs: tuple, key, build):
+        k = (tuple(id(o) for o in objs), key)
+        hit = self._entries.get(k)
+        if hit is not None and all(r() is o for r, o in zip(hit[0], objs, strict=True)):
+            return hit[1]
+        value = build()
+        refs = tuple(weakref.ref(o) for o in objs)
+        self._entries[k] = (refs, value)
+        for o in objs:
+            weakref.finalize(o, self._drop, k, refs)
+        return value
+
+    def _drop(self, k, refs) -> None:
+        hit = self._entries.get(k)
+        if hit is not None and hit[0] is refs:  # not an entry built later under the same ids
+            del self._entries[k]
+
+
+_ROLLOUTS = IdentityCache()
+"""compiled rollouts per (env, act) object and batch shape"""
 
 
 def _rollout_fn(policy: Policy, n: int, key_shape=(2,), key_dtype=np.uint32):
     """The compiled rollout of ``n`` episodes: (state, reset keys [n, *key_shape]) -> (per-step
-    records [T, n, ...], first states, desired goals [n, 2, 3])."""
+    records [T, n, ...], first states, desired goals [n, 2, 3]); cached per env and act object
+    (`IdentityCache`)."""
     import jax  # lazy: JAX loads only when episodes run (daddpg-evaluate --help stays JAX-free)
 
-    key_ = (id(policy.env), id(policy.act), n, tuple(key_shape), np.dtype(key_dtype).str)
-    if key_ in _ROLLOUTS:
-        return _ROLLOUTS[key_]
-    keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
-    fn = jax.jit(_rollout_program(policy)).lower(policy.params, keys).compile()  # before any
-    _ROLLOUTS[key_] = fn                                                  # watchdog runs
-    return fn
+    def build():  # compiled before any watchdog runs
+        keys = jax.ShapeDtypeStruct((n, *key_shape), key_dtype)
+        return jax.jit(_rollout_program(policy)).lower(policy.params, keys).compile()
+
+    return _ROLLOUTS.get((policy.env, policy.act),
+                         (n, tuple(key_shape), np.dtype(key_dtype).str), build)
 
 
 def _rollout_program(policy: Policy):
