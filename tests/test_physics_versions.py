@@ -212,23 +212,34 @@ def test_version_7_meshes_every_finger_pair_of_pick_up(task):
     assert physics_changed(7, task, "c") and not physics_changed(7, task, "mjx")
     assert physics_version_note(6, task, simulated=7, engine="mjx") is None
     assert physics_version_note(6, task, simulated=7, engine="c") is not None
-    assert (v7.ngeom, v7.nmesh, v7.npair) == (v6.ngeom, v6.nmesh, v6.npair)
-    check_box_meshes(v7)
-    moved = 0
+    moved = _pairs_moved_to_mesh_copies(v6, v7)
+    assert len(moved) == 8   # 4 fingers x (the bar's middle, their cap)
+    assert not any(v7.geom(int(g)).name.endswith(("_finger1", "_finger2"))
+                   for g in (*v7.pair_geom1, *v7.pair_geom2))
+
+
+def _pairs_moved_to_mesh_copies(v6, vn) -> list[tuple[str, str]]:
+    """The pairs whose geoms differ between models ``v6`` and ``vn`` (by ``v6``'s geom names),
+    having checked that each names the fingers' mesh copies instead of their boxes, that no geom,
+    mesh or pair was added, and that every other array and option is ``v6``'s."""
+    assert (vn.ngeom, vn.nmesh, vn.npair) == (v6.ngeom, v6.nmesh, v6.npair)
+    check_box_meshes(vn)
+    moved = []
     for i in range(v6.npair):
         n6 = (v6.geom(int(v6.pair_geom1[i])).name, v6.geom(int(v6.pair_geom2[i])).name)
-        n7 = (v7.geom(int(v7.pair_geom1[i])).name, v7.geom(int(v7.pair_geom2[i])).name)
-        assert n7 == tuple(n + "_mesh" if n.endswith(("_finger1", "_finger2")) else n
-                           for n in n6)
-        assert not any(n.endswith(("_finger1", "_finger2")) for n in n7)
-        moved += n7 != n6
-    assert moved == 8   # 4 fingers x (the bar's middle, their cap)
+        nn = (vn.geom(int(vn.pair_geom1[i])).name, vn.geom(int(vn.pair_geom2[i])).name)
+        if nn != n6:
+            moved.append(n6)
+            assert nn == tuple(n + "_mesh" if n.endswith(("_finger1", "_finger2")) else n
+                               for n in n6)
+    a6, an = _arrays(v6), _arrays(vn)
     for name in a6:
         if not name.startswith(("pair_geom", "pair_signature")):
-            np.testing.assert_array_equal(a6[name], a7[name], err_msg=name)
-    o6, o7 = _options(v6), _options(v7)
+            np.testing.assert_array_equal(a6[name], an[name], err_msg=name)
+    o6, on = _options(v6), _options(vn)
     for k in o6:
-        np.testing.assert_array_equal(o6[k], o7[k], err_msg=k)
+        np.testing.assert_array_equal(o6[k], on[k], err_msg=k)
+    return moved
 
 
 @pytest.mark.parametrize("task", ["pickup", "pot"])
@@ -248,24 +259,9 @@ def test_version_8_meshes_pick_up_s_cap_pairs_on_version_6(task):
     assert physics_changed(8, task, "c") and not physics_changed(8, task, "mjx")
     assert physics_version_note(7, task, simulated=8, engine="c") is not None
     assert physics_version_note(6, task, simulated=8, engine="mjx") is None
-    assert (v8.ngeom, v8.nmesh, v8.npair) == (v6.ngeom, v6.nmesh, v6.npair)
-    check_box_meshes(v8)
-    moved = []
-    for i in range(v6.npair):
-        n6 = (v6.geom(int(v6.pair_geom1[i])).name, v6.geom(int(v6.pair_geom2[i])).name)
-        n8 = (v8.geom(int(v8.pair_geom1[i])).name, v8.geom(int(v8.pair_geom2[i])).name)
-        if n8 != n6:
-            moved.append(n6)
-            assert n8 == tuple(n + "_mesh" if n.endswith(("_finger1", "_finger2")) else n
-                               for n in n6)
+    moved = _pairs_moved_to_mesh_copies(v6, v8)
     assert sorted(moved) == sorted((f"{a}_finger{k}", f"bar_cap_{a}") for a in "lr"
                                    for k in (1, 2))
-    for name in a6:
-        if not name.startswith(("pair_geom", "pair_signature")):
-            np.testing.assert_array_equal(a6[name], a8[name], err_msg=name)
-    o6, o8 = _options(v6), _options(v8)
-    for k in o6:
-        np.testing.assert_array_equal(o6[k], o8[k], err_msg=k)
     from experiments.engine_parity import pads  # the screen's kind is version 8's scene
 
     screened = _arrays(pads.model("v6_cap_fingers", cfg.scene))
