@@ -209,7 +209,31 @@ def _check(run, monkeypatch_cls, recorder):
     return out
 
 
+def _seed_alone_decides(monkeypatch) -> bool:
+    """Hypothesis draws some 5-15 % of its integers and floats from a pool of constants that
+    it reads out of the source of every local module in sys.modules at that moment
+    (hypothesis/internal/conjecture/providers.py, ``_get_local_constants``): with the same
+    seed, what the process imported before changed the generated runs (12 runs of SEED made
+    597 periods alone, 639 after mjx_envs.tasks.scripted, 494 in a CI worker). For the
+    property tests here the pool is empty and its cache fresh, so the seed alone decides (624
+    periods with Hypothesis 6.170). False, and nothing patched, where a Hypothesis version
+    lacks those internals (the default tier's seed loop then still reaches its count)."""
+    try:
+        from hypothesis.internal.cache import LRUCache
+        from hypothesis.internal.conjecture import providers
+        from hypothesis.internal.constants_ast import Constants
+    except ImportError:
+        return False
+    if not all(hasattr(providers, k) for k in ("_get_local_constants", "CONSTANTS_CACHE")):
+        return False
+    none = Constants()
+    monkeypatch.setattr(providers, "_get_local_constants", lambda: none)
+    monkeypatch.setattr(providers, "CONSTANTS_CACHE", LRUCache(1024))
+    return True
+
+
 def _property(monkeypatch, examples: int, at: int = SEED):
+    _seed_alone_decides(monkeypatch)
     recorder = ArmRecorder()
     install(monkeypatch, recorder)
     originals = {"servoL": SimRTDEControl.servoL, "move": SimGripper.move,
@@ -230,9 +254,9 @@ def _property(monkeypatch, examples: int, at: int = SEED):
 
 
 def test_no_command_leaves_the_limits_whatever_the_service_files_and_arms_do(monkeypatch):
-    """~5 s: >= 500 generated control periods: 12 runs of seed SEED, and 12 more of the next
-    seed while fewer (how many periods 12 runs make varies with what the process imported
-    before, 494-647 seen; docs/RELIABILITY.md)."""
+    """~5 s: >= 500 generated control periods: 12 runs of seed SEED (624 periods whatever the
+    process imported before: `_seed_alone_decides`), and 12 more of the next seed while fewer
+    (a Hypothesis version that draws other runs from the same seed)."""
     periods, seeds = 0, []
     for at in range(SEED, SEED + 4):
         periods += _property(monkeypatch, 12, at)
