@@ -21,11 +21,12 @@ and the C engine's Newton line search runs up to 50 iterations where MJX keeps t
 (`PHYSICS_V6`; C engine only). 7 (opt-in): version 6, and in pick up every finger pair, not
 only the grasp pairs, collides the finger's mesh copy (`PHYSICS_V7`; C engine only). 8
 (opt-in): version 6 (not 7), and in pick up the finger pairs with the bar's caps collide the
-finger's mesh copy (`PHYSICS_V8`; C engine only). The scenes
+finger's mesh copy (`PHYSICS_V8`; C engine only). 9 (opt-in): version 8, and the C engine's
+pot handle pairs are stiffer (`PHYSICS_V9`; C engine only). The scenes
 in assets/ are the current version; `load_model` builds the others from them (version 2:
 `PHYSICS_V2`; version 1: that and `PHYSICS_V1`; version 4: `PHYSICS_V4`; version 5: that and
 `PHYSICS_V5`; version 6: those and `PHYSICS_V6`; version 7: those and `PHYSICS_V7`; version 8:
-version 6's and `PHYSICS_V8`), so that a
+version 6's and `PHYSICS_V8`; version 9: version 8's and `PHYSICS_V9`), so that a
 run or a policy file acts with the physics it was trained on (`physics_version_note`
 says when it does not).
 """
@@ -119,6 +120,26 @@ the eight MJX-trained pick-up checkpoints screened came closest to MJX (docs/MJX
 "Physics version 8"). MJX collides the copies as the boxes they copy (`MJX_BOX_MESHES`), so
 version 8 changes the C engine only."""
 
+PHYSICS_V9 = dict(c_pair_solimp={
+    "scene_pot.xml": {"pot_handle_l": (0.92, 0.97, 0.001, 0.5, 2.0),
+                      "pot_handle_r": (0.92, 0.97, 0.001, 0.5, 2.0)},
+})
+"""Physics version 9 (opt-in: `mjx_envs.settings.LATEST_PHYSICS_VERSION`), as differences from
+version 8: in the scenes named here the C engine's finger pairs with the named object geoms
+(pot: the handles, the grasp pairs) get this solimp, stiffer than the scene's (0.9 0.95), and
+one numeric per pair (`MJX_PAIR_SOLIMP`) keeps MJX at the scene's own. At the same positions of
+a pot grasp MJX's box-box collision returns more points than the C engine's (3.1-3.6 against
+2.7-3.4 per finger pair, 5-18 % more summed depth), so MJX's grasp acts stiffer; with the C
+engine's handle pairs this much stiffer, four MJX-trained pot checkpoints came within 0.05 of
+MJX on the C engine (+0.010 to +0.046), where version 8 left them up to 0.073 above
+(docs/MJX_VS_C.md, "Physics version 9"). It changes the C engine only (and the grasped
+starts of an MJX run, which the C engine records)."""
+
+MJX_PAIR_SOLIMP = "mjx_pair_solimp:"
+"""Prefix of a scene's custom numerics ``mjx_pair_solimp:<geom1>:<geom2>`` (5 values): the
+solimp MJX simulates for that pair where the model's own (which the C engine takes) differs
+(`mjx_model`; version 9)."""
+
 PHYSICS_V2 = dict(
     pair_solimp={
         "scene_pot.xml": {"pot_handle_l": (0.95, 0.99, 0.001, 0.5, 2.0),
@@ -151,10 +172,12 @@ def physics_changed(version: int, task: str, engine: str | None = None) -> bool:
     the scenes `PHYSICS_V4` names, on both engines; version 5 those of `PHYSICS_V5`, on MJX;
     version 6 those of `PHYSICS_V6`, on the C engine; version 7 those of `PHYSICS_V7`, on the C
     engine; version 8 those of `PHYSICS_V8`, on the C engine (against version 7: the scenes of
-    both, whose C engine they change back or anew)."""
-    if version in (6, 7, 8):   # the C engine only
+    both, whose C engine they change back or anew); version 9 those of `PHYSICS_V9`, on the C
+    engine."""
+    if version in (6, 7, 8, 9):   # the C engine only
         scenes = {6: PHYSICS_V6["scenes"], 7: PHYSICS_V7["scenes"],
-                  8: tuple(PHYSICS_V8["mesh_blockers"])}[version]
+                  8: tuple(PHYSICS_V8["mesh_blockers"]),
+                  9: tuple(PHYSICS_V9["c_pair_solimp"])}[version]
         return (engine != "mjx" and registry.is_task(task)
                 and registry.get(task).config.scene in scenes)
     if version == 5:
@@ -262,6 +285,8 @@ def edit_spec(spec: mujoco.MjSpec, scene: str, version: int) -> None:
         _physics_v7(spec, scene)
     if version >= 8:
         _physics_v8(spec, scene)
+    if version >= 9:
+        _physics_v9(spec, scene)
 
 
 def _is_finger(name: str) -> bool:
@@ -367,6 +392,20 @@ def _physics_v8(spec: mujoco.MjSpec, scene: str) -> None:
     mesh_pairs_with(spec, PHYSICS_V8["mesh_blockers"].get(scene, ()))
 
 
+def _physics_v9(spec: mujoco.MjSpec, scene: str) -> None:
+    """Turns a version-8 spec (`_physics_v8`) into version 9 (`PHYSICS_V9`): the C engine's
+    solimp on the named finger pairs, MJX's (the spec's own) in one numeric per pair."""
+    values = PHYSICS_V9["c_pair_solimp"].get(scene, {})
+    for pair in spec.pairs:
+        names = (pair.geomname1, pair.geomname2)
+        hit = [n for n in names if n in values]
+        if not hit or not any(_is_finger(n.removesuffix("_mesh")) for n in names):
+            continue
+        spec.add_numeric(name=f"{MJX_PAIR_SOLIMP}{names[0]}:{names[1]}",
+                         data=[float(x) for x in pair.solimp])
+        pair.solimp = list(values[hit[0]])
+
+
 def mesh_pairs_with(spec: mujoco.MjSpec, objects) -> None:
     """The finger pairs with a geom named in ``objects`` name the finger's mesh copy (which
     version 4 made; ValueError without one)."""
@@ -384,13 +423,28 @@ def mesh_pairs_with(spec: mujoco.MjSpec, objects) -> None:
 
 def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:
     """The model MJX simulates for ``m`` (the C engine simulates ``m`` itself): ``m``, or where
-    ``m`` has the numeric `MJX_LS_ITERATIONS`, a copy with that many line-search iterations."""
+    ``m`` has the numeric `MJX_LS_ITERATIONS` (version 6) or `MJX_PAIR_SOLIMP` ones (version
+    9), a copy with that many line-search iterations and those pairs' solimp."""
+    out = None
+    pairs = {(m.geom(int(m.pair_geom1[i])).name, m.geom(int(m.pair_geom2[i])).name): i
+             for i in range(m.npair)}
     for i in range(m.nnumeric):
-        if m.numeric(i).name == MJX_LS_ITERATIONS:
-            out = copy.copy(m)
-            out.opt.ls_iterations = int(round(float(m.numeric(i).data[0])))
-            return out
-    return m
+        name, data = m.numeric(i).name, m.numeric(i).data
+        if name == MJX_LS_ITERATIONS:
+            out = copy.copy(m) if out is None else out
+            out.opt.ls_iterations = int(round(float(data[0])))
+        elif name.startswith(MJX_PAIR_SOLIMP):
+            geoms = tuple(name[len(MJX_PAIR_SOLIMP):].split(":"))
+            if geoms not in pairs or len(data) != _nimp(m):
+                raise ValueError(f"numeric {name!r}: no such pair, or not {_nimp(m)} values")
+            out = copy.copy(m) if out is None else out
+            out.pair_solimp[pairs[geoms]] = data
+    return m if out is None else out
+
+
+def _nimp(m: mujoco.MjModel) -> int:
+    """Values in one pair's solimp (mjNIMP)."""
+    return int(m.pair_solimp.shape[1])
 
 
 def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:

@@ -30,15 +30,16 @@ with the physics it was trained on (its record: config.json's and the export's
 ``physics_version``, absent = 1; `recorded_physics_version`). See docs/MJX_VS_C.md."""
 
 
-LATEST_PHYSICS_VERSION = 8
+LATEST_PHYSICS_VERSION = 9
 """The newest physics version a run may ask for (``--env physics_version=N``). Versions 4 (the
 finger boxes of the grasp pairs as box-shaped convex meshes: the same contact points on both
 engines at any tilt; `mjx_envs.model.PHYSICS_V4`), 5 (that, and MJX's box-on-table contacts
 at every penetrating corner, as in C; `mjx_envs.model.PHYSICS_V5`) and 6 (that, and the C
 engine's line search to 50 iterations; `mjx_envs.model.PHYSICS_V6`) and 7 (that, and in pick up
 every finger pair on the mesh copy; `mjx_envs.model.PHYSICS_V7`) and 8 (version 6, and in pick
-up the finger pairs with the bar's caps on the mesh copy; `mjx_envs.model.PHYSICS_V8`) are
-opt-in until their
+up the finger pairs with the bar's caps on the mesh copy; `mjx_envs.model.PHYSICS_V8`) and 9
+(that, and the C engine's pot handle pairs stiffer; `mjx_envs.model.PHYSICS_V9`) are opt-in
+until their
 MJX -> C measurement (docs/MJX_VS_C.md) makes one the default; new runs get `PHYSICS_VERSION`."""
 
 

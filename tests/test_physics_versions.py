@@ -19,12 +19,14 @@ from mjx_envs.model import (
     MJX_BOX_MESHES,
     MJX_FINITE_LINESEARCH,
     MJX_LS_ITERATIONS,
+    MJX_PAIR_SOLIMP,
     MJX_UNIQUE_CONTACTS,
     PHYSICS_V1,
     PHYSICS_V4,
     PHYSICS_V6,
     PHYSICS_V7,
     PHYSICS_V8,
+    PHYSICS_V9,
     check_box_meshes,
     load_model,
     mjx_model,
@@ -267,6 +269,54 @@ def test_version_8_meshes_pick_up_s_cap_pairs_on_version_6(task):
     screened = _arrays(pads.model("v6_cap_fingers", cfg.scene))
     for name in a8:
         np.testing.assert_array_equal(a8[name], screened[name], err_msg=name)
+
+
+@pytest.mark.parametrize("task", ["pot", "pickup", "push"])
+def test_version_9_stiffens_pot_s_handle_pairs_on_the_c_engine_only(task):
+    """Version 9 (opt-in) is version 8 with pot's four finger-handle pairs at solimp 0.92 0.97 on
+    the C engine; MJX simulates version 8's (one numeric per pair, `mjx_model`), so every
+    array of MJX's model is version 8's. Pick up and push are version 8 exactly (~1 s)."""
+    cfg = registry.task_config(task, physics_version=9)
+    v8, v9 = load_model(cfg.scene, physics_version=8), load_model(cfg.scene, physics_version=9)
+    a8, a9 = _arrays(v8), _arrays(v9)
+    if cfg.scene not in PHYSICS_V9["c_pair_solimp"]:
+        for name in a8:
+            np.testing.assert_array_equal(a8[name], a9[name], err_msg=name)
+        assert not physics_changed(9, task)
+        return
+    assert physics_changed(9, task, "c") and not physics_changed(9, task, "mjx")
+    assert physics_version_note(8, task, simulated=9, engine="mjx") is None
+    assert physics_version_note(8, task, simulated=9, engine="c") is not None
+    names = [(v9.geom(int(v9.pair_geom1[i])).name, v9.geom(int(v9.pair_geom2[i])).name)
+             for i in range(v9.npair)]
+    stiffer = [i for i in range(v9.npair) if not np.array_equal(v8.pair_solimp[i],
+                                                                 v9.pair_solimp[i])]
+    assert sorted(names[i] for i in stiffer) == sorted(
+        (f"{a}_finger{k}_mesh", f"pot_handle_{a}") for a in "lr" for k in (1, 2))
+    for i in stiffer:
+        np.testing.assert_allclose(v9.pair_solimp[i], (0.92, 0.97, 0.001, 0.5, 2.0))
+        np.testing.assert_allclose(v8.pair_solimp[i], (0.9, 0.95, 0.001, 0.5, 2.0))
+    extra = [v9.numeric(i).name for i in range(v9.nnumeric)
+             if v9.numeric(i).name.startswith(MJX_PAIR_SOLIMP)]
+    assert sorted(extra) == sorted(f"{MJX_PAIR_SOLIMP}{a}:{b}" for a, b in
+                                   (names[i] for i in stiffer))
+    for name in a8:   # the C engine: the handle pairs' solimp and the numerics, nothing else
+        if not name.startswith(("pair_solimp", "numeric", "name_numericadr", "names", "name_",
+                                "nnumeric")):
+            np.testing.assert_array_equal(a8[name], a9[name], err_msg=name)
+    m8, m9 = _arrays(mjx_model(v8)), _arrays(mjx_model(v9))
+    for name in m8:   # MJX: version 8's model, but for the numerics that say so
+        if not name.startswith(("numeric", "name_numericadr", "names", "name_", "nnumeric")):
+            np.testing.assert_array_equal(m8[name], m9[name], err_msg=name)
+    o8, o9 = _options(mjx_model(v8)), _options(mjx_model(v9))
+    for k in o8:
+        np.testing.assert_array_equal(o8[k], o9[k], err_msg=k)
+    assert NumpyDualArmEnv(cfg, task=task).model.pair_solimp[stiffer[0]][1] == pytest.approx(0.97)
+    bad = mujoco.MjSpec.from_string(
+        "<mujoco><custom><numeric name='mjx_pair_solimp:a:b' data='1 2 3 4 5'/></custom>"
+        "<worldbody><geom name='a' size='1'/></worldbody></mujoco>").compile()
+    with pytest.raises(ValueError, match="no such pair"):
+        mjx_model(bad)
 
 
 def _corners(m, g) -> np.ndarray:

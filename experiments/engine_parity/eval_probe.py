@@ -85,6 +85,11 @@ CANDIDATES = {
     "handle_solref_0.04": _handle(solref=(0.04, 1.0)),
     "handle_solimp_soft": _handle(**SOFT),
     "handle_friction_1.0": _handle(friction=(1.0, 1.0, 0.01, 0.0001, 0.0001)),
+    "handle_friction_1.3": _handle(friction=(1.3, 1.3, 0.01, 0.0001, 0.0001)),
+    "handle_solimp_0.92_0.97": _handle(solimp=(0.92, 0.97, 0.001)),
+    "handle_solimp_hard": _handle(solimp=(0.95, 0.99, 0.001)),
+    "handle_solimp_0.93_0.98": _handle(solimp=(0.93, 0.98, 0.001)),
+    "handle_solimp_0.92_0.98": _handle(solimp=(0.92, 0.98, 0.001)),
 }
 
 
