@@ -79,7 +79,7 @@ class TaskConfig:
                                 "contacts before the engines were made to agree; 2: before MJX "
                                 "returned each box-box contact point once; kept so that older "
                                 "runs and policy files act with the physics they were trained "
-                                "on; 4-8: opt-in, up to "
+                                "on; 4-9: opt-in, up to "
                                 "mjx_envs.settings.LATEST_PHYSICS_VERSION; see "
                                 "mjx_envs.model)", low=1,
                                 high=LATEST_PHYSICS_VERSION)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The MJX -> C check of one MJX-trained run (docs/MJX_VS_C.md, "MJX-trained policies on the C
-# engine"): train pick up or pot on MJX in physics version VERSION (3: the default; 4-8: opt-in,
+# engine"): train pick up or pot on MJX in physics version VERSION (3: the default; 4-9: opt-in,
 # see docs/MJX_VS_C.md), keep every checkpoint, then evaluate on both engines,
 # paired, over EPISODES fresh episodes of seed 9090: the best checkpoint and the first whose test
 # success reached 0.5 (the run records its version: the evaluations simulate it).
