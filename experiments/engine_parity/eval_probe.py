@@ -81,6 +81,8 @@ CANDIDATES = {
                                             finger=True, solref=(0.0175, 1.0)),
     "neck_solref_0.04": _neck(solref=(0.04, 1.0)),
     "neck_solimp_soft": _neck(**SOFT),
+    "neck_solimp_0.97_0.995": _neck(solimp=(0.97, 0.995, 0.001)),
+    "neck_solimp_0.96_0.99": _neck(solimp=(0.96, 0.99, 0.001)),
     "neck_friction_2.0": _neck(friction=(2.0, 2.0, 0.01, 0.0001, 0.0001)),
     "handle_solref_0.04": _handle(solref=(0.04, 1.0)),
     "handle_solimp_soft": _handle(**SOFT),
