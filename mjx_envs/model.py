@@ -132,8 +132,10 @@ a pot grasp MJX's box-box collision returns more points than the C engine's (3.1
 2.7-3.4 per finger pair, 5-18 % more summed depth), so MJX's grasp acts stiffer; with the C
 engine's handle pairs this much stiffer, four MJX-trained pot checkpoints came within 0.05 of
 MJX on the C engine (+0.010 to +0.046), where version 8 left them up to 0.073 above
-(docs/MJX_VS_C.md, "Physics version 9"). It changes the C engine only (and the grasped
-starts of an MJX run, which the C engine records)."""
+(docs/MJX_VS_C.md, "Physics version 9"); trained on MJX in version 9, three of three best
+and two of three weak pot checkpoints agree, but a C-trained pot policy now leans to the C
+engine (+0.077). It changes the C engine only (and the grasped starts of an MJX run, which the
+C engine records)."""
 
 MJX_PAIR_SOLIMP = "mjx_pair_solimp:"
 """Prefix of a scene's custom numerics ``mjx_pair_solimp:<geom1>:<geom2>`` (5 values): the
