@@ -428,8 +428,6 @@ def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:
     ``m`` has the numeric `MJX_LS_ITERATIONS` (version 6) or `MJX_PAIR_SOLIMP` ones (version
     9), a copy with that many line-search iterations and those pairs' solimp."""
     out = None
-    pairs = {(m.geom(int(m.pair_geom1[i])).name, m.geom(int(m.pair_geom2[i])).name): i
-             for i in range(m.npair)}
     for i in range(m.nnumeric):
         name, data = m.numeric(i).name, m.numeric(i).data
         if name == MJX_LS_ITERATIONS:
@@ -437,16 +435,14 @@ def mjx_model(m: mujoco.MjModel) -> mujoco.MjModel:
             out.opt.ls_iterations = int(round(float(data[0])))
         elif name.startswith(MJX_PAIR_SOLIMP):
             geoms = tuple(name[len(MJX_PAIR_SOLIMP):].split(":"))
-            if geoms not in pairs or len(data) != _nimp(m):
-                raise ValueError(f"numeric {name!r}: no such pair, or not {_nimp(m)} values")
+            pair = [j for j in range(m.npair) if (m.geom(int(m.pair_geom1[j])).name,
+                                                  m.geom(int(m.pair_geom2[j])).name) == geoms]
+            if not pair or len(data) != m.pair_solimp.shape[1]:
+                raise ValueError(f"numeric {name!r}: no such pair, or not "
+                                 f"{m.pair_solimp.shape[1]} values")
             out = copy.copy(m) if out is None else out
-            out.pair_solimp[pairs[geoms]] = data
+            out.pair_solimp[pair[0]] = data
     return m if out is None else out
-
-
-def _nimp(m: mujoco.MjModel) -> int:
-    """Values in one pair's solimp (mjNIMP)."""
-    return int(m.pair_solimp.shape[1])
 
 
 def check_box_meshes(m: mujoco.MjModel, tol: float = 1e-6) -> None:

@@ -203,21 +203,33 @@ def test_version_7_meshes_every_finger_pair_of_pick_up(task):
     are version 6 exactly. The change is the C engine's only: MJX collides the copies as the
     boxes they copy (`MJX_BOX_MESHES`; the same 300 episodes on MJX in docs/MJX_VS_C.md,
     "Physics version 7") (~1 s)."""
-    cfg = registry.task_config(task, physics_version=7)
-    v6, v7 = load_model(cfg.scene, physics_version=6), load_model(cfg.scene, physics_version=7)
-    a6, a7 = _arrays(v6), _arrays(v7)
-    if cfg.scene not in PHYSICS_V7["scenes"]:
-        for name in a6:
-            np.testing.assert_array_equal(a6[name], a7[name], err_msg=name)
-        assert not physics_changed(7, task)
+    models = _c_engine_change(task, 6, 7, PHYSICS_V7["scenes"])
+    if models is None:
         return
-    assert physics_changed(7, task, "c") and not physics_changed(7, task, "mjx")
-    assert physics_version_note(6, task, simulated=7, engine="mjx") is None
-    assert physics_version_note(6, task, simulated=7, engine="c") is not None
+    _, v6, v7 = models
     moved = _pairs_moved_to_mesh_copies(v6, v7)
     assert len(moved) == 8   # 4 fingers x (the bar's middle, their cap)
     assert not any(v7.geom(int(g)).name.endswith(("_finger1", "_finger2"))
                    for g in (*v7.pair_geom1, *v7.pair_geom2))
+
+
+def _c_engine_change(task, old: int, new: int, scenes):
+    """(task config, model in version ``old``, in version ``new``) where version ``new``
+    changes ``task``'s scene (in ``scenes``), having checked that it changes the C engine only
+    and that a run of version ``old`` simulated in ``new`` is warned on the C engine alone;
+    None, having checked that every array is ``old``'s and no change is reported, elsewhere."""
+    cfg = registry.task_config(task, physics_version=new)
+    mo, mn = load_model(cfg.scene, physics_version=old), load_model(cfg.scene, physics_version=new)
+    if cfg.scene not in scenes:
+        ao, an = _arrays(mo), _arrays(mn)
+        for name in ao:
+            np.testing.assert_array_equal(ao[name], an[name], err_msg=name)
+        assert not physics_changed(new, task)
+        return None
+    assert physics_changed(new, task, "c") and not physics_changed(new, task, "mjx")
+    assert physics_version_note(old, task, simulated=new, engine="mjx") is None
+    assert physics_version_note(old, task, simulated=new, engine="c") is not None
+    return cfg, mo, mn
 
 
 def _pairs_moved_to_mesh_copies(v6, vn) -> list[tuple[str, str]]:
@@ -250,23 +262,17 @@ def test_version_8_meshes_pick_up_s_cap_pairs_on_version_6(task):
     fingers' mesh copies: the grasp pairs stay on the copies (version 4), the finger-middle
     pairs stay boxes, nothing else changes. Pot is version 6 exactly. A C-engine change only;
     between versions 7 and 8 the C engine of pick up changes (the middle pairs go back) (~1 s)."""
-    cfg = registry.task_config(task, physics_version=8)
-    v6, v8 = load_model(cfg.scene, physics_version=6), load_model(cfg.scene, physics_version=8)
-    a6, a8 = _arrays(v6), _arrays(v8)
-    if cfg.scene not in PHYSICS_V8["mesh_blockers"]:
-        for name in a6:
-            np.testing.assert_array_equal(a6[name], a8[name], err_msg=name)
-        assert not physics_changed(8, task)
+    models = _c_engine_change(task, 6, 8, PHYSICS_V8["mesh_blockers"])
+    if models is None:
         return
-    assert physics_changed(8, task, "c") and not physics_changed(8, task, "mjx")
+    cfg, v6, v8 = models
     assert physics_version_note(7, task, simulated=8, engine="c") is not None
-    assert physics_version_note(6, task, simulated=8, engine="mjx") is None
     moved = _pairs_moved_to_mesh_copies(v6, v8)
     assert sorted(moved) == sorted((f"{a}_finger{k}", f"bar_cap_{a}") for a in "lr"
                                    for k in (1, 2))
     from experiments.engine_parity import pads  # the screen's kind is version 8's scene
 
-    screened = _arrays(pads.model("v6_cap_fingers", cfg.scene))
+    a8, screened = _arrays(v8), _arrays(pads.model("v6_cap_fingers", cfg.scene))
     for name in a8:
         np.testing.assert_array_equal(a8[name], screened[name], err_msg=name)
 
@@ -276,17 +282,11 @@ def test_version_9_stiffens_pot_s_handle_pairs_on_the_c_engine_only(task):
     """Version 9 (opt-in) is version 8 with pot's four finger-handle pairs at solimp 0.92 0.97 on
     the C engine; MJX simulates version 8's (one numeric per pair, `mjx_model`), so every
     array of MJX's model is version 8's. Pick up and push are version 8 exactly (~1 s)."""
-    cfg = registry.task_config(task, physics_version=9)
-    v8, v9 = load_model(cfg.scene, physics_version=8), load_model(cfg.scene, physics_version=9)
-    a8, a9 = _arrays(v8), _arrays(v9)
-    if cfg.scene not in PHYSICS_V9["c_pair_solimp"]:
-        for name in a8:
-            np.testing.assert_array_equal(a8[name], a9[name], err_msg=name)
-        assert not physics_changed(9, task)
+    models = _c_engine_change(task, 8, 9, PHYSICS_V9["c_pair_solimp"])
+    if models is None:
         return
-    assert physics_changed(9, task, "c") and not physics_changed(9, task, "mjx")
-    assert physics_version_note(8, task, simulated=9, engine="mjx") is None
-    assert physics_version_note(8, task, simulated=9, engine="c") is not None
+    cfg, v8, v9 = models
+    a8, a9 = _arrays(v8), _arrays(v9)
     names = [(v9.geom(int(v9.pair_geom1[i])).name, v9.geom(int(v9.pair_geom2[i])).name)
              for i in range(v9.npair)]
     stiffer = [i for i in range(v9.npair) if not np.array_equal(v8.pair_solimp[i],
