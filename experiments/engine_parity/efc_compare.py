@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 import mjx_envs  # noqa: E402
 from experiments.engine_parity import parity as ep  # noqa: E402
 from experiments.engine_parity import probe_tools as pt  # noqa: E402
+from mjx_envs import model as model_lib  # noqa: E402
 from mjx_envs.physics import backends  # noqa: E402
 
 TASK, LOAD, STATES, STEPS = "pickup", 6.0, 8, 8
@@ -31,7 +32,7 @@ TASK, LOAD, STATES, STEPS = "pickup", 6.0, 8, 8
 def widest_state(m, st, f, n_sub, dofs):
     """(difference, state, C data, MJX data) of the state with the largest |d acc_lin|."""
     mjx = backends.import_mjx()
-    mm = mjx.put_model(m)
+    mm = mjx.put_model(model_lib.mjx_model(m))
     d0 = mjx.make_data(mm)
     fwd = jax.jit(lambda dd: mjx.forward(mm, dd))
     best, d = None, mujoco.MjData(m)

@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 import mjx_envs  # noqa: E402
 from experiments.engine_parity import parity as ep  # noqa: E402
 from experiments.engine_parity import probe_tools as pt  # noqa: E402
+from mjx_envs import model as model_lib  # noqa: E402
 from mjx_envs.physics import backends  # noqa: E402
 
 N, EVERY, STEPS = 32, 4, 16   # states; sample every EVERY of STEPS control steps
@@ -61,7 +62,7 @@ def c_trajectory(m, st, f, n_sub, dofs, pg):
 
 def mjx_forward(m, samples, f, dofs, pg):
     mjx = backends.import_mjx()
-    mm = mjx.put_model(m)
+    mm = mjx.put_model(model_lib.mjx_model(m))
     d0 = mjx.make_data(mm)
     pga, fj = jnp.asarray(sorted(pg)), jnp.asarray(f, jnp.float32)
 

@@ -24,6 +24,7 @@ import numpy as np  # noqa: E402
 
 import mjx_envs  # noqa: E402
 from experiments.engine_parity import probe_tools as pt  # noqa: E402
+from mjx_envs import model as model_lib  # noqa: E402
 from mjx_envs.physics import backends  # noqa: E402
 
 N = 32
@@ -53,7 +54,7 @@ def mjx_contacts(m, st, pg) -> list:
     if os.environ.get("UNIQ"):
         from experiments.engine_parity import unique_points
         unique_points.install()
-    mm = mjx.put_model(m)
+    mm = mjx.put_model(model_lib.mjx_model(m))
     d0 = mjx.make_data(mm)
 
     @jax.jit

@@ -152,7 +152,7 @@ def mjx_points(m, poses) -> list:
     # import_mjx also routes box-shaped meshes for models with the numeric (physics version 4)
     if model_lib.MJX_BOX_MESHES in [m.numeric(i).name for i in range(m.nnumeric)]:
         model_lib.check_box_meshes(m)
-    mm = mjx.put_model(m)
+    mm = mjx.put_model(model_lib.mjx_model(m))
     d0 = mjx.make_data(mm)
 
     @jax.jit

@@ -54,6 +54,7 @@ import mujoco
 import numpy as np
 
 import mjx_envs
+from mjx_envs import model as model_lib
 from mjx_envs import observation as obs_lib
 from mjx_envs import registry
 from mjx_envs.physics import backends
@@ -368,7 +369,7 @@ def forward_gap(task: str, cand: Candidate, states: dict, chunk: int = 32) -> di
         g = np.stack([d.contact.geom1[:d.ncon], d.contact.geom2[:d.ncon]], -1)
         con_c[i] = np.isin(g, fingers).any(-1).sum()
     mjx = backends.import_mjx()
-    mm = mjx.put_model(m_m)
+    mm = mjx.put_model(model_lib.mjx_model(m_m))
     d0 = mjx.make_data(mm)
 
     @jax.jit
