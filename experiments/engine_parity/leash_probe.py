@@ -25,17 +25,15 @@ from experiments.engine_parity import probe_tools as pt  # noqa: E402
 from mjx_envs import core  # noqa: E402
 
 
-def leashed_step(leash: float):
-    """`DualArmEnv.step` with the targets clipped to the measured TCP +- `leash` per axis."""
-    def step(self, state, action):
-        a = core.clip_action(action)
-        current = self.backend.mocap_pos(state.data)[:core.NUM_ARMS]
-        target = self.move_targets(current, self.config.max_delta * a[:, :3])
+def leashed_limits(leash: float):
+    """`DualArmEnv.limit_targets` that first clips the targets to the measured TCP +- `leash`
+    per axis (the step itself is the env's own)."""
+    limit_targets = core.DualArmEnv.limit_targets
+
+    def limit(self, state, current, target):
         grip = state.obs["observation"][..., 0:3]
-        target = jnp.clip(target, grip - leash, grip + leash)
-        target, intervened = self.limit_targets(state, current, target)
-        return self.charge(self.advance(state, target, a[:, 3]), intervened)
-    return step
+        return limit_targets(self, state, current, jnp.clip(target, grip - leash, grip + leash))
+    return limit
 
 
 def main(argv=None) -> int:
@@ -47,7 +45,8 @@ def main(argv=None) -> int:
     step = None if len(argv) < 3 or argv[2] == "best" else int(argv[2])
     leash = float(os.environ.get("LEASH", "0"))
     if leash > 0:
-        core.DualArmEnv.step = leashed_step(leash)   # this process only, before any compile
+        # this process only, before any compile
+        core.DualArmEnv.limit_targets = leashed_limits(leash)
     engines = tuple(e for e in os.environ.get("ENGINES", "c,mjx").split(",") if e)
     res = pt.evaluate_engines(run, None, engines, int(os.environ.get("EPISODES", "300")), 9090,
                               label=f"leash {leash}", step=step)
