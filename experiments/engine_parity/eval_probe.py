@@ -39,6 +39,10 @@ def _handle(**fields):   # every pair with a pot handle
     return pt.pair_fields(words=("pot_handle",), min_friction=None, **fields)
 
 
+def _body(**fields):   # every finger pair with the pot's body
+    return pt.pair_fields(words=("pot_body",), min_friction=None, finger=True, **fields)
+
+
 def _grasp(**fields):   # every pair with a pot handle or a bar neck
     return pt.pair_fields(min_friction=None, **fields)
 
@@ -92,6 +96,11 @@ CANDIDATES = {
     "handle_solimp_hard": _handle(solimp=(0.95, 0.99, 0.001)),
     "handle_solimp_0.93_0.98": _handle(solimp=(0.93, 0.98, 0.001)),
     "handle_solimp_0.92_0.98": _handle(solimp=(0.92, 0.98, 0.001)),
+    "handle_solimp_0.92_0.975": _handle(solimp=(0.92, 0.975, 0.001)),
+    # the finger-pot body pairs (blockers; solimp 0.95 0.99 in the scene)
+    "body_solimp_soft": _body(**SOFT),
+    "body_solimp_0.97_0.995": _body(solimp=(0.97, 0.995, 0.001)),
+    "body_solref_0.01": _body(solref=(0.01, 1.0)),
 }
 
 
