@@ -103,3 +103,42 @@ def test_scripted_pot_succeeds_alike_on_both_engines():
     assert abs(row["c"]["successes"] - row["mjx"]["successes"]) <= 1, row
     assert row["mjx"]["physics_ok"] == 1.0
     assert row["div_test_mm"] < 15.0 and row["div_mean_mm"] < 15.0, row
+
+
+def _comparison(seed, both, c_only, mjx_only, neither, run="/runs/x/run", step=7):
+    return dict(run_dir=run, checkpoint=step, seed=seed,
+                difference=dict(engines=["c", "mjx"], paired=dict(
+                    both=both, first_only=c_only, second_only=mjx_only, neither=neither)))
+
+
+def test_pooled_sums_disjoint_episode_sets_and_refuses_overlaps():
+    """experiments/engine_parity/pooled.py: counts add up, the interval is Newcombe's over the
+    sums; a repeated seed or another checkpoint is refused (pure Python, ~0.1 s)."""
+    from daddpg_jax.analysis.engines import newcombe_paired_interval
+    from experiments.engine_parity import pooled
+
+    a, b = _comparison(9090, 91, 59, 47, 103), _comparison(9191, 178, 117, 110, 195)
+    s = pooled.summary([a, b])
+    assert s["counts"] == dict(both=269, first_only=176, second_only=157, neither=298)
+    assert s["episodes"] == 900
+    assert s["difference"] == pytest.approx((176 - 157) / 900)
+    assert s["ci95"] == pytest.approx(list(newcombe_paired_interval(269, 176, 157, 298)))
+    with pytest.raises(ValueError, match="overlap"):
+        pooled.summary([a, _comparison(9090, 1, 1, 1, 1)])
+    with pytest.raises(ValueError, match="checkpoint"):
+        pooled.summary([a, _comparison(9191, 1, 1, 1, 1, step=8)])
+
+
+def test_null_pass_falls_with_discordance_and_rises_with_episodes():
+    """The bar's pass chance without a lean: 1 when no episode is solved by one engine only,
+    lower the more episodes split, higher for the same rates on three times the episodes;
+    a probability in every case (pure Python, ~0.2 s)."""
+    from experiments.engine_parity import pooled
+
+    none = dict(both=150, first_only=0, second_only=0, neither=150)
+    assert pooled.null_pass(none) == pytest.approx(1.0)
+    few = pooled.null_pass(dict(both=200, first_only=20, second_only=20, neither=60))
+    many = pooled.null_pass(dict(both=100, first_only=60, second_only=60, neither=80))
+    many_x3 = pooled.null_pass(dict(both=300, first_only=180, second_only=180, neither=240))
+    assert 0.0 <= many < few <= 1.0
+    assert many < many_x3 <= 1.0
