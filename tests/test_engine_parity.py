@@ -127,6 +127,8 @@ def test_pooled_sums_disjoint_episode_sets_and_refuses_overlaps():
         pooled.summary([a, _comparison(9090, 1, 1, 1, 1)])
     with pytest.raises(ValueError, match="checkpoint"):
         pooled.summary([a, _comparison(9191, 1, 1, 1, 1, step=8)])
+    with pytest.raises(ValueError, match="checkpoint"):
+        pooled.summary([a, _comparison(9191, 1, 1, 1, 1, run="/runs/y/run")])
 
 
 def test_null_pass_falls_with_discordance_and_rises_with_episodes():

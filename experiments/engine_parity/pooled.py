@@ -39,8 +39,8 @@ def pooled_counts(docs: list[dict]) -> dict:
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"episode seeds repeat ({seeds}): the episode sets would overlap")
     for d in docs:
-        if (os.path.basename(os.path.normpath(d["run_dir"])), d["checkpoint"]) != (
-                os.path.basename(os.path.normpath(first["run_dir"])), first["checkpoint"]):
+        if (os.path.normpath(d["run_dir"]), d["checkpoint"]) != (
+                os.path.normpath(first["run_dir"]), first["checkpoint"]):
             raise ValueError("the inputs are not one run's checkpoint")
         if list(d["difference"]["engines"]) != ["c", "mjx"]:
             raise ValueError("each input must compare c with mjx, in that order")
