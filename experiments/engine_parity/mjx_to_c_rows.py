@@ -14,7 +14,7 @@ import os
 import re
 import sys
 
-BAR = 0.10
+from daddpg_jax.running.cross_check import PART_TOLERANCE as BAR
 
 
 def row(out: str, name: str) -> str | None:
