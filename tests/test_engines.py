@@ -19,6 +19,7 @@ import pytest
 
 from daddpg_jax.analysis import engines, evaluation
 from daddpg_jax.cli import evaluate as evaluate_cli
+from daddpg_jax.running.cross_check import PART_TOLERANCE
 from mjx_envs.schema import ConfigError
 
 # -- the paired interval ------------------------------------------------------------------------
@@ -267,7 +268,7 @@ def test_scripted_pickup_succeeds_on_both_engines():
 N_AGREEMENT = 300
 """episodes per engine of the slow agreement benchmark (issue target: over >= 300 fixed
 episodes the paired 95 % interval of the success difference C - MJX lies within +-0.10)"""
-AGREEMENT_BOUND = 0.10
+AGREEMENT_BOUND = PART_TOLERANCE
 
 
 @pytest.mark.slow

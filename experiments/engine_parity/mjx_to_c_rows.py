@@ -17,6 +17,11 @@ import sys
 from daddpg_jax.running.cross_check import PART_TOLERANCE as BAR
 
 
+def inside(lo: float, hi: float, bar: float = BAR) -> bool:
+    """whether the interval (lo, hi) lies within ±bar, the agreement the rows check"""
+    return -bar <= lo and hi <= bar
+
+
 def row(out: str, name: str) -> str | None:
     path = os.path.join(out, f"{name}.json")
     if not os.path.exists(path):
@@ -25,7 +30,7 @@ def row(out: str, name: str) -> str | None:
     c, m, diff = d["engines"]["c"], d["engines"]["mjx"], d["difference"]
     lo, hi = diff["ci95"]
     p = diff["paired"]
-    within = "yes" if -BAR <= lo and hi <= BAR else (
+    within = "yes" if inside(lo, hi) else (
         "**no** (C below)" if diff["value"] < 0 else "**no** (C above)")
     label = "best" if d["best"] else "first ≥ 0.5"
     return (f"| {label} (epoch {d['checkpoint']}) | {c['success_rate']:.3f} ({c['successes']}/"

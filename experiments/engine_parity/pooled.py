@@ -26,7 +26,7 @@ if __package__ in (None, ""):  # run as a file: the repository root holds `exper
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 from daddpg_jax.analysis.engines import newcombe_paired_interval  # noqa: E402
-from experiments.engine_parity.mjx_to_c_rows import BAR  # noqa: E402
+from experiments.engine_parity.mjx_to_c_rows import BAR, inside  # noqa: E402
 
 KEYS = ("both", "first_only", "second_only", "neither")
 
@@ -47,10 +47,6 @@ def pooled_counts(docs: list[dict]) -> dict:
     return {k: sum(int(d["difference"]["paired"][k]) for d in docs) for k in KEYS}
 
 
-def within(lo: float, hi: float, bar: float = BAR) -> bool:
-    return -bar <= lo and hi <= bar
-
-
 def null_pass(counts: dict, bar: float = BAR) -> float:
     """P(the interval lies within ±bar) when the episodes solved by one engine only split
     Binomial(D, 1/2) between the engines (``both`` and ``neither`` kept)."""
@@ -59,7 +55,7 @@ def null_pass(counts: dict, bar: float = BAR) -> float:
     total = 0.0
     for b in range(disc + 1):
         lo, hi = newcombe_paired_interval(a, b, disc - b, d)
-        if within(lo, hi, bar):
+        if inside(lo, hi, bar):
             total += math.comb(disc, b) / 2.0 ** disc
     return total
 
@@ -71,7 +67,7 @@ def summary(docs: list[dict]) -> dict:
     lo, hi = newcombe_paired_interval(*(counts[k] for k in KEYS))
     return dict(run=os.path.basename(os.path.dirname(os.path.normpath(docs[0]["run_dir"]))),
                 checkpoint=docs[0]["checkpoint"], seeds=[d["seed"] for d in docs], episodes=n,
-                counts=counts, difference=diff, ci95=[lo, hi], within=within(lo, hi),
+                counts=counts, difference=diff, ci95=[lo, hi], within=inside(lo, hi),
                 null_pass=null_pass(counts))
 
 
