@@ -11,6 +11,8 @@ object_size      every object geom's half-sizes, + v metres (a few mm); the rest
 object_friction  the tangential friction of every contact pair with the object,        objects
                  x (1 + v)
 table_height     the table top's height, + v metres; the resting height moves by v     objects
+grasp_timeconst  the contact time constant (solref[0]) of every finger-object pair,    objects
+                 x (1 + v): the grip's contact stiffness goes as 1 / timeconst^2
 base_offset      each arm's base (mount) position, moved by v metres in a random       all
                  direction (one per arm)
 base_yaw         each arm's base turned by v degrees about the vertical (one draw per  all
@@ -59,17 +61,18 @@ from mjx_envs.observation import obs_layout
 from mjx_envs.rules import yaw_quat
 from mjx_envs.settings import RANDOMIZATION_FIELDS as FIELDS
 
-OBJECT_FIELDS = FIELDS[:4]
+OBJECT_FIELDS = FIELDS[:5]
 
 NUM_ARMS = 2
 STREAM = 0x9A7D0
 """``fold_in`` constant of the randomization's draws from the reset key (`mjx_envs.wrappers.
 Randomize`): the task's draws stay those of the nominal env"""
-PARAMS = 13
+PARAMS = 14
 """length of one env's parameter vector: mass scale, size delta, friction scale, table delta,
-finger scale, base offsets [2, 3], base yaws [2] (radians)"""
+finger scale, base offsets [2, 3], base yaws [2] (radians), grasp time-constant scale (last, so
+that the first 13 keep their places)"""
 
-GEOMETRY_MASK = np.array([False, True, False, True, False] + [True] * 8)
+GEOMETRY_MASK = np.array([False, True, False, True, False] + [True] * 8 + [False])
 """the parameters that move geometry (object size, table height, arm bases): nominal in an
 episode that starts from a recorded grasped state"""
 
@@ -86,6 +89,7 @@ class Randomization:
     object_size: float = 0.0
     object_friction: float = 0.0
     table_height: float = 0.0
+    grasp_timeconst: float = 0.0
     base_offset: float = 0.0
     base_yaw: float = 0.0
     finger_force: float = 0.0
@@ -121,7 +125,7 @@ def _signed(sampler, key, bound: float, exact: bool, shape=()):
 def draw(xp, sampler, key, r: Randomization) -> dict:
     """One episode's values: ``params`` [PARAMS] (the model's, `model_fields`), ``action_scale``
     [] and ``rest_shift`` [] (metres the object's resting height moves)."""
-    keys = sampler.split(key, 9)
+    keys = sampler.split(key, 10)   # the 10th (grasp_timeconst) last: the others' draws stay
     f32 = xp.float32
     mass = 1.0 + _signed(sampler, keys[0], r.object_mass, r.exact)
     size = _signed(sampler, keys[1], r.object_size, r.exact)
@@ -139,9 +143,13 @@ def draw(xp, sampler, key, r: Randomization) -> dict:
     yaw = np.float32(np.pi / 180.0) * _signed(sampler, keys[7], r.base_yaw, r.exact,
                                               (NUM_ARMS,))
     action = 1.0 + _signed(sampler, keys[8], r.action_scale, r.exact)
+    # drawn only when on: a NumPy sampler's stream (one generator, draws in order) stays as it was
+    timeconst = (1.0 + _signed(sampler, keys[9], r.grasp_timeconst, r.exact)
+                 if r.grasp_timeconst else np.float32(1.0))
     scalars = xp.stack([xp.asarray(v, f32) for v in (mass, size, friction, table, finger)])
     params = xp.concatenate([scalars, offset.reshape(-1).astype(f32),
-                             xp.asarray(yaw, f32).reshape(-1)])
+                             xp.asarray(yaw, f32).reshape(-1),
+                             xp.asarray(timeconst, f32).reshape(1)])
     return dict(params=params.astype(f32), action_scale=xp.asarray(action, f32),
                 rest_shift=xp.asarray(table + size, f32))
 
@@ -151,13 +159,13 @@ def unpack(params) -> dict:
     return dict(mass=params[..., 0], size=params[..., 1], friction=params[..., 2],
                 table=params[..., 3], finger=params[..., 4],
                 offset=params[..., 5:11].reshape(params.shape[:-1] + (NUM_ARMS, 3)),
-                yaw=params[..., 11:13])
+                yaw=params[..., 11:13], timeconst=params[..., 13])
 
 
 def nominal_params() -> np.ndarray:
     """The parameter vector of the nominal model."""
     p = np.zeros(PARAMS, np.float32)
-    p[[0, 2, 4]] = 1.0
+    p[[0, 2, 4, 13]] = 1.0
     return p
 
 
@@ -207,12 +215,14 @@ class ModelIndex:
             g1, g2 = model.pair_geom1, model.pair_geom2
             self.pairs = np.flatnonzero(np.isin(g1, self.geoms) | np.isin(g2, self.geoms))
             self.table = model.geom(_TABLE).id
+            on_table = (g1[self.pairs] == self.table) | (g2[self.pairs] == self.table)
+            self.grip_pairs = self.pairs[~on_table]   # the finger-object pairs
         names = ["actuator_gainprm", "actuator_biasprm", "actuator_forcerange"]
         if r.moves_base:
             names += ["body_pos", "body_quat"]
         if self.has_object:
             names += ["body_mass", "body_inertia", "body_subtreemass", "geom_size",
-                      "geom_rbound", "geom_pos", "pair_friction"]
+                      "geom_rbound", "geom_pos", "pair_friction", "pair_solref"]
         # float64 (the C engine's own values, so that rows left nominal stay bit-exact there);
         # model_fields casts to float32 under jax.numpy
         self.nominal = {n: np.array(getattr(model, n), np.float64) for n in names}
@@ -233,6 +243,8 @@ class ModelIndex:
                 out += ["geom_pos"]
             if r.object_friction:
                 out += ["pair_friction"]
+            if r.grasp_timeconst:
+                out += ["pair_solref"]
         return tuple(out)
 
 
@@ -283,6 +295,10 @@ def model_fields(xp, ix: ModelIndex, params) -> dict:
         out["pair_friction"] = _set_rows(xp, nom["pair_friction"], (rows[:, None],
                                          np.array([0, 1])[None, :]),
                                          nom["pair_friction"][rows][:, :2] * p["friction"])
+    if "pair_solref" in names:
+        rows = ix.grip_pairs
+        out["pair_solref"] = _set_rows(xp, nom["pair_solref"], (rows, 0),
+                                       nom["pair_solref"][rows, 0] * p["timeconst"])
     return out
 
 

@@ -206,6 +206,11 @@ class ObjectTaskConfig(TaskConfig):
                                "goals move by v (the grippers' workspace does not: within "
                                "1 cm they still reach the object); 0 = off", low=-0.01,
                                high=0.01)
+    grasp_timeconst: float = spec(0.0, "physics randomization: the contact time constant "
+                                  "(solref[0]) of every finger-object contact pair x (1 + v), "
+                                  "so the grip's contact stiffness (~1/timeconst^2) x 0.59 to "
+                                  "2.04 at v = 0.3 (bound: v uniform in [-|v|, |v|]); 0 = off",
+                                  low=-0.5, high=0.5)
 
     def __post_init__(self):
         super().__post_init__()
@@ -236,8 +241,9 @@ class LiftTaskConfig(ObjectTaskConfig):
 
 
 RANDOMIZATION_FIELDS = ("object_mass", "object_size", "object_friction", "table_height",
-                        "base_offset", "base_yaw", "finger_force", "action_scale")
-"""Physics randomization fields (mjx_envs/randomize.py); the first four exist in object tasks
+                        "grasp_timeconst", "base_offset", "base_yaw", "finger_force",
+                        "action_scale")
+"""Physics randomization fields (mjx_envs/randomize.py); the first five exist in object tasks
 only."""
 
 TRAINING_ONLY_FIELDS = ("goal_rest_fraction", "grasp_start_fraction", "obs_noise",

@@ -18,13 +18,15 @@ L = obs_layout()
 T, N = 6, 4
 EXACT = dict(perturb_exact=True)
 VALUE = dict(object_mass=0.5, object_size=0.004, object_friction=-0.4, table_height=0.01,
-             base_offset=0.01, base_yaw=4.0, finger_force=-0.5, action_scale=0.5)
+             grasp_timeconst=0.25, base_offset=0.01, base_yaw=4.0, finger_force=-0.5,
+             action_scale=0.5)
 """one exact value per field (the test of each field)"""
 CHANGES = {
     "object_mass": {"body_mass", "body_inertia", "body_subtreemass"},
     "object_size": {"geom_size", "geom_rbound"},
     "object_friction": {"pair_friction"},
     "table_height": {"geom_pos"},
+    "grasp_timeconst": {"pair_solref"},
     "base_offset": {"body_pos"},
     "base_yaw": {"body_quat"},
     "finger_force": {"actuator_gainprm", "actuator_biasprm", "actuator_forcerange"},
@@ -49,6 +51,11 @@ def _run(task="pickup", actions=None, physics="c", **over):
     keys = jax.random.split(jax.random.PRNGKey(5), N)
     s0, tr = fn(keys, jnp.asarray(actions))
     return env, jax.device_get(s0), jax.device_get(tr)
+
+
+def _pair_names(m, row):
+    """The geom names of contact pair ``row`` of model ``m``."""
+    return m.geom(int(m.pair_geom1[row])).name, m.geom(int(m.pair_geom2[row])).name
 
 
 def _index(task, **over):
@@ -80,7 +87,7 @@ def test_off_by_default_with_nothing_carried():
 @pytest.mark.parametrize("name", randomize.FIELDS)
 def test_each_field_changes_the_model_fields_it_names_and_nothing_else(name):
     task = "pickup"
-    _, ix = _index(task, **{name: VALUE[name]}, **EXACT)
+    env, ix = _index(task, **{name: VALUE[name]}, **EXACT)
     r = randomize.Randomization.from_config(registry.task_config(task, **{name: VALUE[name]},
                                                                  **EXACT))
     values = randomize.draw(np, rules.NumpySampler(), np.random.default_rng(0), r)
@@ -103,6 +110,14 @@ def test_each_field_changes_the_model_fields_it_names_and_nothing_else(name):
                                    0.6 * m["pair_friction"][rows, :2], rtol=1e-6)
         np.testing.assert_array_equal(fields["pair_friction"][rows, 2:],
                                       m["pair_friction"][rows, 2:])
+    if name == "grasp_timeconst":
+        rows = np.flatnonzero(np.any(fields["pair_solref"] != m["pair_solref"], axis=1))
+        assert set(rows) == set(ix.grip_pairs) and len(rows) == 12   # 4 fingers x 3 parts
+        names = {n for r in rows for n in _pair_names(env.mj_model, r)}
+        assert "tabletop" not in names
+        np.testing.assert_allclose(fields["pair_solref"][rows, 0],
+                                   1.25 * m["pair_solref"][rows, 0], rtol=1e-6)
+        np.testing.assert_array_equal(fields["pair_solref"][rows, 1], m["pair_solref"][rows, 1])
     if name == "table_height":
         diff = fields["geom_pos"] - m["geom_pos"]
         assert np.count_nonzero(diff) == 1 and diff[ix.table, 2] == pytest.approx(0.01)
@@ -210,7 +225,8 @@ def test_finger_force_changes_the_squeeze():
 @pytest.mark.mjx
 def test_mjx_and_c_build_the_same_models_and_start_states():
     over = dict(object_mass=0.5, object_size=0.004, object_friction=0.5, table_height=0.01,
-                base_offset=0.01, base_yaw=4.0, finger_force=0.3, episode_length=T)
+                grasp_timeconst=0.3, base_offset=0.01, base_yaw=4.0, finger_force=0.3,
+                episode_length=T)
     c = mjx_envs.make("pickup", physics="c", **over)
     m = mjx_envs.make("pickup", physics="mjx", **over)
     keys = jax.random.split(jax.random.PRNGKey(2), 2)

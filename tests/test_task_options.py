@@ -236,7 +236,7 @@ def test_test_overrides_switch_the_options_off():
                      "base_offset": 0.0, "base_yaw": 0.0, "finger_force": 0.0,
                      "action_scale": 0.0}   # mjx_envs/randomize.py, every task
     objects = {"object_mass": 0.0, "object_size": 0.0, "object_friction": 0.0,
-               "table_height": 0.0}   # mjx_envs/randomize.py, object tasks
+               "table_height": 0.0, "grasp_timeconst": 0.0}   # randomize.py, object tasks
     for task in LIFT_TASKS:
         assert registry.test_overrides(task) == {**OFF, **perturbations, **objects}
         on = {"goal_rest_fraction": 0.5, "grasp_start_fraction": 0.5, "latency": 2}

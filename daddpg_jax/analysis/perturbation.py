@@ -35,6 +35,7 @@ AXIS_LABELS = {
     "object_size": "object half-size change (m)",
     "object_friction": "object friction change (fraction, x (1 + v))",
     "table_height": "table height change (m)",
+    "grasp_timeconst": "grip contact time-constant change (fraction, x (1 + v))",
     "base_offset": "arm base offset (m)",
     "base_yaw": "arm base yaw (degrees)",
     "finger_force": "finger force change (fraction, x (1 + v))",

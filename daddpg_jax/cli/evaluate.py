@@ -83,7 +83,8 @@ def build_parser():
              "(repeatable; one key each): obs_noise (std, m), obs_dropout (probability per "
              "step), obs_bias (m), obs_period (steps), latency (steps), and the physics "
              "randomization fields at exact values: object_mass, object_size, object_friction, "
-             "table_height (object tasks), base_offset, base_yaw, finger_force, action_scale "
+             "table_height, grasp_timeconst (object tasks), base_offset, base_yaw, finger_force, "
+             "action_scale "
              "(mjx_envs/perturb.py, mjx_envs/randomize.py); needs --out")
     add("--out", metavar="DIR", default=None,
         help="with --perturb: directory for perturbation.csv and .json (one row per grid "
