@@ -31,8 +31,9 @@ from daddpg_jax.algo import resolve  # noqa: E402
 from daddpg_jax.analysis import engines, evaluation, perturbation  # noqa: E402
 from daddpg_jax.running import run_dirs  # noqa: E402
 from mjx_envs import episode_starts  # noqa: E402
+from mjx_envs.randomize import OBJECT_FIELDS  # noqa: E402
 from mjx_envs.schema import ConfigError  # noqa: E402
-from mjx_envs.settings import PHYSICS  # noqa: E402
+from mjx_envs.settings import PHYSICS, RANDOMIZATION_FIELDS  # noqa: E402
 
 
 def build_parser():
@@ -82,9 +83,8 @@ def build_parser():
         help="evaluate over a grid of perturbations, the product of the values given "
              "(repeatable; one key each): obs_noise (std, m), obs_dropout (probability per "
              "step), obs_bias (m), obs_period (steps), latency (steps), and the physics "
-             "randomization fields at exact values: object_mass, object_size, object_friction, "
-             "table_height, grasp_timeconst (object tasks), base_offset, base_yaw, finger_force, "
-             "action_scale "
+             f"randomization fields at exact values: {', '.join(OBJECT_FIELDS)} (object tasks), "
+             f"{', '.join(f for f in RANDOMIZATION_FIELDS if f not in OBJECT_FIELDS)} "
              "(mjx_envs/perturb.py, mjx_envs/randomize.py); needs --out")
     add("--out", metavar="DIR", default=None,
         help="with --perturb: directory for perturbation.csv and .json (one row per grid "
