@@ -9,6 +9,8 @@ import sys
 import pytest
 
 from daddpg_jax.algo.config import (
+    FOR_C_ENGINE_ENV,
+    FOR_C_ENGINE_TASKS,
     ROBUST_ENV,
     ROBUST_OBS,
     TrainConfig,
@@ -111,6 +113,34 @@ def test_robust_adds_the_robust_bounds_that_the_task_has(tmp_path):
     assert env_over == {"team_scale": 0.5, **robust_env("push")}
     with pytest.raises(schema.ConfigError, match="--robust is decided by the run's config"):
         _resolve("--resume", str(run), "--robust")
+
+
+def test_for_c_engine_sets_the_measured_recipe_for_mjx_training_only(tmp_path):
+    """--for-c-engine: FOR_C_ENGINE_ENV on top of the task's env preset for pickup and pot with
+    MJX physics (--env still overrides single fields); refused for other tasks, for a run on
+    the C engine (explicit or --physics auto on this CPU) and for a resume."""
+    _, env_over, _ = _resolve("--task", "pot", "--physics", "mjx", "--for-c-engine",
+                              "--env", "finger_force=0.2")
+    assert env_over == {**preset_env("pot"), **FOR_C_ENGINE_ENV, "finger_force": 0.2}
+    # randomizations are training's only; the physics version is the run's, test included
+    assert set(FOR_C_ENGINE_ENV) - {"physics_version"} <= set(settings.TRAINING_ONLY_FIELDS)
+    assert "physics_version" not in settings.TRAINING_ONLY_FIELDS
+    for task in FOR_C_ENGINE_TASKS:
+        cfg, env_over, _ = _resolve("--task", task, "--physics", "mjx", "--for-c-engine")
+        assert cfg.physics == "mjx" and env_over == {**preset_env(task), **FOR_C_ENGINE_ENV}
+        registry.task_config(task, **env_over)   # valid
+    with pytest.raises(schema.ConfigError, match="--for-c-engine: measured for pickup and pot"):
+        _resolve("--task", "push", "--physics", "mjx", "--for-c-engine")
+    for physics in (["--physics", "c"], []):   # auto: the C engine on this CPU
+        with pytest.raises(schema.ConfigError, match="recipe for MJX training.*--physics mjx"):
+            _resolve("--task", "pickup", *physics, "--for-c-engine")
+    run = tmp_path / "old"
+    ckpt.save_config(str(run), build_config("pot", device="cpu", physics="mjx"),
+                     env_overrides=dict(FOR_C_ENGINE_ENV))
+    with pytest.raises(schema.ConfigError, match="--for-c-engine is decided by the run's"):
+        _resolve("--resume", str(run), "--for-c-engine")
+    _, env_over, _ = _resolve("--resume", str(run))   # the recorded recipe is kept
+    assert env_over == FOR_C_ENGINE_ENV
 
 
 def test_config_file_reruns_a_recorded_configuration(tmp_path):

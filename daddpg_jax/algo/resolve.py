@@ -16,6 +16,7 @@ from daddpg_jax.algo.config import (
     PHYSICS,
     TrainConfig,
     build_config,
+    for_c_engine_env,
     preset,
     preset_env,
     robust_env,
@@ -100,6 +101,14 @@ FLAGS = (
                            "and each arm's last action in its observation (ROBUST_OBS: "
                            "action_history=1, kept in test episodes and exports); --env "
                            "overrides single fields; docs/ENVIRONMENTS.md")),
+    ("--for-c-engine", dict(action="store_true",
+                            help="MJX training of a policy that is to run on the C engine (the "
+                                 "robot side's simulator; pickup, pot; needs MJX physics): "
+                                 "physics version 9 and the grasp's physics randomized per "
+                                 "training episode (daddpg_jax.algo.config.FOR_C_ENGINE_ENV; "
+                                 "test episodes stay nominal); --env overrides single fields; "
+                                 "add --cross-check c to follow the C engine's success; "
+                                 "docs/MJX_VS_C.md")),
     ("--demos", dict(type=int, default=None, metavar="N",
                      help="play N episodes of the task's scripted controller at the start and "
                           "train on them beside the replay, with a behaviour-cloning term "
@@ -214,6 +223,8 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
     if args.robust:   # a resume refused --robust above
         env_over.update(robust_env(cfg.task))
+    if getattr(args, "for_c_engine", False):   # (likewise)
+        env_over.update(for_c_engine_env(cfg.task))
     cfg = cfg.replace(**_field_overrides(args))
     env_cls = type(registry.default_config(cfg.task))
     kept = {k: env_over.get(k) for k in RESUME_KEEPS}
@@ -238,6 +249,9 @@ def _check_resume_flags(args, cfg: TrainConfig) -> None:
     if args.robust:
         raise ConfigError("--resume: --robust is decided by the run's config; start a new "
                           "run instead")
+    if getattr(args, "for_c_engine", False):
+        raise ConfigError("--resume: --for-c-engine is decided by the run's config; start a "
+                          "new run instead")
     if args.demos is not None and args.demos != cfg.n_demos:
         raise ConfigError(f"--resume: --demos differs from the run's config "
                           f"({cfg.n_demos}); start a new run instead")
