@@ -48,6 +48,9 @@ class Task:
       ``epoch_env_steps`` and ``n_epochs``.
     env_preset: env overrides a new run trains with unless ``--env`` says otherwise (e.g.
       grasped starts).
+    for_c_engine: whether ``daddpg-train --for-c-engine`` (MJX training for the C engine,
+      `daddpg_jax.algo.config.FOR_C_ENGINE_ENV`) is measured for it (docs/MJX_VS_C.md);
+      the flag refuses the other tasks.
     gym_id / dense_gym_id: its Gymnasium ids (sparse reward; dense reward); by default
       derived from the name (`gym_ids`: 'pot' -> DualUR3Pot-v0, DualUR3PotDense-v0); '' = none.
     module: the module that declares it (recorded by training runs as ``task_module``).
@@ -63,6 +66,7 @@ class Task:
     accelerator_preset: dict = dataclasses.field(
         default_factory=lambda: dict(epoch_env_steps=1_000_000, n_epochs=40))
     env_preset: dict = dataclasses.field(default_factory=dict)
+    for_c_engine: bool = False
     gym_id: str | None = None
     dense_gym_id: str | None = None
     module: str = ""

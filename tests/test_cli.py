@@ -10,12 +10,12 @@ import pytest
 
 from daddpg_jax.algo.config import (
     FOR_C_ENGINE_ENV,
-    FOR_C_ENGINE_TASKS,
     ROBUST_ENV,
     ROBUST_OBS,
     TrainConfig,
     build_config,
     current_device,
+    for_c_engine_tasks,
     preset,
     preset_env,
     robust_env,
@@ -125,7 +125,8 @@ def test_for_c_engine_sets_the_measured_recipe_for_mjx_training_only(tmp_path):
     # randomizations are training's only; the physics version is the run's, test included
     assert set(FOR_C_ENGINE_ENV) - {"physics_version"} <= set(settings.TRAINING_ONLY_FIELDS)
     assert "physics_version" not in settings.TRAINING_ONLY_FIELDS
-    for task in FOR_C_ENGINE_TASKS:
+    assert for_c_engine_tasks() == ("pickup", "pot")   # the tasks' modules say so
+    for task in for_c_engine_tasks():
         cfg, env_over, _ = _resolve("--task", task, "--physics", "mjx", "--for-c-engine")
         assert cfg.physics == "mjx" and env_over == {**preset_env(task), **FOR_C_ENGINE_ENV}
         registry.task_config(task, **env_over)   # valid

@@ -282,18 +282,21 @@ FOR_C_ENGINE_ENV = dict(physics_version=9, object_friction=0.3, object_mass=0.3,
 """The `--for-c-engine` recipe: MJX training of a policy that is to run on the C engine (the
 robot side's simulator): physics version 9's scenes, and the grasp's physics (object friction
 and mass, finger force, the finger-object contacts' time constant) drawn per training episode
-up to these bounds; test episodes stay nominal. Measured for the tasks of FOR_C_ENGINE_TASKS:
-docs/MJX_VS_C.md, "One recipe for pick up and pot"."""
+up to these bounds; test episodes stay nominal. Measured for the tasks that say so
+(`mjx_envs.registry.Task.for_c_engine`): docs/MJX_VS_C.md, "One recipe for pick up and pot"."""
 
-FOR_C_ENGINE_TASKS = ("pickup", "pot")
-"""the tasks whose MJX -> C agreement under FOR_C_ENGINE_ENV is measured"""
+
+def for_c_engine_tasks() -> tuple:
+    """The registered tasks whose MJX -> C agreement under FOR_C_ENGINE_ENV is measured."""
+    return tuple(t for t in registry.TASKS if registry.get(t).for_c_engine)
 
 
 def for_c_engine_env(task: str) -> dict:
     """The `--for-c-engine` env overrides of `task` (FOR_C_ENGINE_ENV); ConfigError for a task
-    outside FOR_C_ENGINE_TASKS."""
-    if task not in FOR_C_ENGINE_TASKS:
-        raise ConfigError(f"--for-c-engine: measured for {' and '.join(FOR_C_ENGINE_TASKS)} "
+    whose module does not mark it measured (`for_c_engine_tasks`)."""
+    task_presets(task)   # ConfigError for an unknown task
+    if not registry.get(task).for_c_engine:
+        raise ConfigError(f"--for-c-engine: measured for {' and '.join(for_c_engine_tasks())} "
                           f"only, not {task!r} (docs/MJX_VS_C.md); train {task} with the task's "
                           "preset, or set single fields with --env")
     return dict(FOR_C_ENGINE_ENV)

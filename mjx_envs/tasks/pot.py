@@ -31,5 +31,7 @@ TASK = registry.register(registry.Task(
     accelerator_preset=dict(epoch_env_steps=1_000_000, n_epochs=120),
     # half the episodes start grasped (docs/TRAINING.md, "Presets")
     env_preset=dict(grasp_start_fraction=0.5),
+    # MJX -> C measured with --for-c-engine's recipe (docs/MJX_VS_C.md, "One recipe")
+    for_c_engine=True,
     module=__name__,
 ))
