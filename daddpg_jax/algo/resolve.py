@@ -223,7 +223,7 @@ def resolve_config(args, load_recorded) -> tuple[TrainConfig, dict]:
         cfg, env_over = build_config(task, args.num_envs, device=args.device), preset_env(task)
     if args.robust:   # a resume refused --robust above
         env_over.update(robust_env(cfg.task))
-    if getattr(args, "for_c_engine", False):   # (likewise)
+    if args.for_c_engine:   # a resume refused --for-c-engine above
         env_over.update(for_c_engine_env(cfg.task))
     cfg = cfg.replace(**_field_overrides(args))
     env_cls = type(registry.default_config(cfg.task))
@@ -249,7 +249,7 @@ def _check_resume_flags(args, cfg: TrainConfig) -> None:
     if args.robust:
         raise ConfigError("--resume: --robust is decided by the run's config; start a new "
                           "run instead")
-    if getattr(args, "for_c_engine", False):
+    if args.for_c_engine:
         raise ConfigError("--resume: --for-c-engine is decided by the run's config; start a "
                           "new run instead")
     if args.demos is not None and args.demos != cfg.n_demos:

@@ -84,7 +84,7 @@ def resolve(args, parser=None, check_out: bool = True):
 
     cfg, env_over = resolve_config(args, run_dirs.recorded)
     cfg = cross_check.apply_flag(cfg, args.cross_check, resumed=bool(args.resume))
-    if getattr(args, "for_c_engine", False) and cross_check.resolved_physics(cfg.physics) != "mjx":
+    if args.for_c_engine and cross_check.resolved_physics(cfg.physics) != "mjx":
         raise ConfigError(f"--for-c-engine is a recipe for MJX training; this run trains on "
                           f"the C engine (physics {cfg.physics!r}): add --physics mjx, or leave "
                           "the flag out (a C-trained run needs no recipe to run on the C engine)")
